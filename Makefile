@@ -1,0 +1,45 @@
+# Two commands do all set-up:  `make demo`  and  `make test`.
+# torch is installed first, pinned to the CPU wheel (2.13.0): installing the project
+# into an env without torch would let pip pull a CUDA build of several GB.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.multigrasp-installed
+TORCH  := torch==2.13.0
+WORKDIR ?= runs
+PIP_QUIET ?= -q
+
+.PHONY: install demo test test-fast bench clean-runs help
+
+help:
+	@echo "make demo   create .venv, install, run the smoke pipeline end to end"
+	@echo "make test   install if needed, run the whole test suite"
+	@echo "make bench  run the speed benchmarks (JSON in benchmarks/results/)"
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install $(PIP_QUIET) --upgrade pip
+	$(BIN)/python -m pip install $(PIP_QUIET) $(TORCH)
+	$(BIN)/python -m pip install $(PIP_QUIET) -e ".[test]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: install
+	$(BIN)/multigrasp run --profile smoke --workdir $(WORKDIR)
+	@echo ""
+	@echo "Results are in $(WORKDIR)/ (stages/, results/); status: $(BIN)/multigrasp status --workdir $(WORKDIR)"
+	@echo "Open the MLflow UI:  $(BIN)/multigrasp ui --workdir $(WORKDIR)   then browse http://127.0.0.1:5000"
+
+test: install
+	$(BIN)/python -m pytest -q
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow"
+
+bench: install
+	mkdir -p benchmarks/results
+	$(BIN)/multigrasp bench kinematics --json benchmarks/results/kinematics.json
+
+clean-runs:
+	rm -rf $(WORKDIR)

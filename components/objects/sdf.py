@@ -1,0 +1,383 @@
+"""Signed distance functions: analytic primitives (torch) and cached mesh grids.
+
+Conventions (every function here):
+
+* ``points`` is a torch tensor ``(..., 3)`` in the shape's own frame, metres;
+  the result is ``(...)`` with the same dtype and device.
+* Signed distance is **negative inside**, zero on the surface, positive outside.
+* Every function is differentiable w.r.t. ``points`` with torch autograd, also at
+  the singular points of the formulas (norms use :func:`safe_norm`, so the
+  gradient there is finite instead of NaN).
+
+Analytic formulas follow Inigo Quilez's catalogue of distance functions
+(iquilezles.org/articles/distfunctions); each states whether it is exact.
+
+Mesh SDFs are a regular grid of exact signed distances (built here with
+:func:`mesh_signed_distance`, validated against ``trimesh.proximity.signed_distance``
+in the tests), stored as ``.npz`` with a content hash, and sampled with
+differentiable trilinear interpolation (:func:`trilinear_interpolate`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+from scipy.spatial import cKDTree
+
+log = logging.getLogger(__name__)
+
+#: Added under square roots so that gradients at a zero-length vector are 0, not NaN.
+#: 1e-20 m^2 shifts a distance by at most 1e-10 m (far below float32 resolution of metres).
+NORM_EPS_SQ = 1e-20
+
+#: Bump when the grid format or the distance algorithm changes: old cache files are rebuilt.
+GRID_FORMAT_VERSION = "sdfgrid-v1"
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def safe_norm(x: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
+    """Euclidean norm ``sqrt(sum x^2 + eps)`` whose gradient at ``x = 0`` is 0 instead of NaN."""
+    return torch.sqrt((x * x).sum(dim=dim, keepdim=keepdim) + NORM_EPS_SQ)
+
+
+def _extrusion_combine(d_xy: torch.Tensor, d_z: torch.Tensor) -> torch.Tensor:
+    """Exact SDF of a 2-D shape (SDF ``d_xy``) extruded over a slab (SDF ``d_z``).
+
+    ``min(max(d_xy, d_z), 0) + |max((d_xy, d_z), 0)|`` — exact when both inputs are exact.
+    """
+    outside = torch.stack([d_xy.clamp_min(0.0), d_z.clamp_min(0.0)], dim=-1)  # (..., 2)
+    return torch.maximum(d_xy, d_z).clamp_max(0.0) + safe_norm(outside)
+
+
+# ----------------------------------------------------------------------------- analytic SDFs
+
+
+def sphere_sdf(points: torch.Tensor, radius: float) -> torch.Tensor:
+    """Sphere centred at the origin. Exact: ``d(p) = |p| - r``."""
+    return safe_norm(points) - radius
+
+
+def box_sdf(points: torch.Tensor, half_extents: tuple[float, float, float]) -> torch.Tensor:
+    """Axis-aligned box centred at the origin. Exact.
+
+    ``q = |p| - h``;  ``d(p) = |max(q, 0)| + min(max(q_x, q_y, q_z), 0)``.
+    """
+    h = torch.as_tensor(half_extents, dtype=points.dtype, device=points.device)
+    q = points.abs() - h  # (..., 3)
+    return safe_norm(q.clamp_min(0.0)) + q.max(dim=-1).values.clamp_max(0.0)
+
+
+def cylinder_sdf(points: torch.Tensor, radius: float, half_height: float) -> torch.Tensor:
+    """Solid cylinder along z, centred at the origin. Exact.
+
+    Extrusion of a disc: ``d_xy = |p_xy| - r``, ``d_z = |p_z| - h/2``, combined by
+    :func:`_extrusion_combine`.
+    """
+    d_xy = safe_norm(points[..., :2]) - radius
+    d_z = points[..., 2].abs() - half_height
+    return _extrusion_combine(d_xy, d_z)
+
+
+def capsule_sdf(points: torch.Tensor, radius: float, half_length: float) -> torch.Tensor:
+    """Capsule: segment from ``(0,0,-l/2)`` to ``(0,0,l/2)`` swept by a ball of radius r. Exact.
+
+    ``d(p) = |p - (0, 0, clamp(p_z, -l/2, l/2))| - r``.
+    """
+    axis_point = torch.zeros_like(points)
+    axis_point[..., 2] = points[..., 2].clamp(-half_length, half_length)
+    return safe_norm(points - axis_point) - radius
+
+
+def ellipsoid_sdf(points: torch.Tensor, semi_axes: tuple[float, float, float]) -> torch.Tensor:
+    """Ellipsoid with semi-axes ``a`` along x, y, z. **Approximate** (no closed form exists).
+
+    ``k0 = |p / a|``, ``k1 = |p / a^2|``, ``d(p) = k0 (k0 - 1) / k1``  (Quilez's improved bound).
+
+    Properties: zero exactly on the surface; its gradient on the surface is the exact
+    unit outward normal; away from it the error grows with the distance and the axis
+    ratio (for the library's 3 x 2 x 1.75 cm ellipsoid it stays well under 1 mm within
+    1 cm of the surface — measured in ``tests/test_objects_sdf.py``). At the centre
+    (where the formula is 0/0) it returns ``-min(a)``, the exact value there.
+    """
+    a = torch.as_tensor(semi_axes, dtype=points.dtype, device=points.device)
+    k0 = safe_norm(points / a)
+    k1 = safe_norm(points / (a * a))
+    at_centre = k1 < 1e-9 / float(a.max()) ** 2
+    approx = k0 * (k0 - 1.0) / torch.where(at_centre, torch.ones_like(k1), k1)
+    return torch.where(at_centre, torch.full_like(k0, -float(a.min())), approx)
+
+
+def frustum_sdf(points: torch.Tensor, radius_bottom: float, radius_top: float, half_height: float) -> torch.Tensor:
+    """Capped cone (frustum) along z, base radius at ``z=-h/2``, top radius at ``z=+h/2``. Exact.
+
+    In the half-plane ``q = (|p_xy|, p_z)`` with ``k1 = (r_top, h/2)``, ``k2 = (r_top - r_bottom, h)``:
+    ``ca = (q_x - min(q_x, r_bottom if q_z < 0 else r_top), |q_z| - h/2)`` (distance to the caps),
+    ``cb = q - k1 + k2 clamp(((k1 - q) . k2) / |k2|^2, 0, 1)`` (distance to the slanted side),
+    ``d = s sqrt(min(|ca|^2, |cb|^2))`` with ``s = -1`` iff ``cb_x < 0 and ca_z < 0`` (inside).
+    """
+    qx = safe_norm(points[..., :2])
+    qz = points[..., 2]
+    cap_radius = torch.where(qz < 0.0, torch.full_like(qz, radius_bottom), torch.full_like(qz, radius_top))
+    ca_x = qx - torch.minimum(qx, cap_radius)
+    ca_z = qz.abs() - half_height
+    k1 = (radius_top, half_height)
+    k2 = (radius_top - radius_bottom, 2.0 * half_height)
+    k2_sq = k2[0] ** 2 + k2[1] ** 2
+    t = (((k1[0] - qx) * k2[0] + (k1[1] - qz) * k2[1]) / k2_sq).clamp(0.0, 1.0)
+    cb_x = qx - k1[0] + k2[0] * t
+    cb_z = qz - k1[1] + k2[1] * t
+    inside = (cb_x < 0.0) & (ca_z < 0.0)
+    dist_sq = torch.minimum(ca_x * ca_x + ca_z * ca_z, cb_x * cb_x + cb_z * cb_z)
+    dist = torch.sqrt(dist_sq + NORM_EPS_SQ)
+    return torch.where(inside, -dist, dist)
+
+
+def hexagonal_prism_sdf(points: torch.Tensor, apothem: float, half_height: float) -> torch.Tensor:
+    """Regular hexagonal prism along z; flat sides at ``y = ±apothem``, corners on the x axis. Exact.
+
+    2-D hexagon by symmetry folding (``k = (-sqrt(3)/2, 1/2)``): ``q = |p_xy|``;
+    ``q -= 2 min(k . q, 0) k``; ``q -= (clamp(q_x, -a/sqrt(3), a/sqrt(3)), a)``;
+    ``d_xy = |q| sign(q_y)``; then extruded by ``d_z = |p_z| - h/2`` (:func:`_extrusion_combine`).
+    """
+    kx, ky, kz = -0.8660254037844386, 0.5, 0.5773502691896258
+    q = points[..., :2].abs()
+    fold = 2.0 * (kx * q[..., 0] + ky * q[..., 1]).clamp_max(0.0)
+    qx = q[..., 0] - fold * kx
+    qy = q[..., 1] - fold * ky
+    qx = qx - qx.clamp(-kz * apothem, kz * apothem)
+    qy = qy - apothem
+    d_xy = safe_norm(torch.stack([qx, qy], dim=-1)) * torch.where(qy < 0.0, -1.0, 1.0).to(qy.dtype)
+    d_z = points[..., 2].abs() - half_height
+    return _extrusion_combine(d_xy, d_z)
+
+
+def torus_sdf(points: torch.Tensor, major_radius: float, minor_radius: float) -> torch.Tensor:
+    """Torus around the z axis (ring in the xy plane). Exact.
+
+    ``d(p) = |(|p_xy| - R, p_z)| - r``.
+    """
+    ring = safe_norm(points[..., :2]) - major_radius
+    return safe_norm(torch.stack([ring, points[..., 2]], dim=-1)) - minor_radius
+
+
+# ----------------------------------------------------------------------------- exact mesh distance
+
+
+@dataclass(frozen=True)
+class _PseudoNormals:
+    """Angle-weighted pseudo-normals of a closed mesh (Baerentzen & Aanaes 2005).
+
+    The sign of ``(p - c) . n`` is exact when ``n`` is the pseudo-normal of the feature
+    (face, edge or vertex) on which the closest point ``c`` lies.
+    """
+
+    face: np.ndarray  # (F, 3)
+    edge_of_face: np.ndarray  # (F, 3, 3): pseudo-normal of the edge opposite vertex i of face f
+    vertex: np.ndarray  # (V, 3)
+
+
+def _pseudo_normals(mesh: trimesh.Trimesh) -> _PseudoNormals:
+    """Face normals, edge normals (sum of the two adjacent face normals), angle-weighted vertex normals."""
+    face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    n_faces = len(mesh.faces)
+    # trimesh orders a face's edges (v0,v1), (v1,v2), (v2,v0); edge opposite vertex i is index (i+1)%3
+    edge_sum = np.zeros((len(mesh.edges_unique), 3))
+    np.add.at(edge_sum, mesh.edges_unique_inverse, np.repeat(face_normals, 3, axis=0))
+    edge_sum /= np.linalg.norm(edge_sum, axis=1, keepdims=True).clip(1e-30)
+    edges_per_face = mesh.edges_unique_inverse.reshape(n_faces, 3)  # (F, 3)
+    opposite = edges_per_face[:, [1, 2, 0]]
+    vertex_sum = np.zeros((len(mesh.vertices), 3))
+    weights = np.asarray(mesh.face_angles, dtype=np.float64)  # (F, 3)
+    np.add.at(vertex_sum, mesh.faces.ravel(), (face_normals[:, None, :] * weights[..., None]).reshape(-1, 3))
+    vertex_sum /= np.linalg.norm(vertex_sum, axis=1, keepdims=True).clip(1e-30)
+    return _PseudoNormals(face=face_normals, edge_of_face=edge_sum[opposite], vertex=vertex_sum)
+
+
+def _surface_index(mesh: trimesh.Trimesh, spacing: float, seed: int) -> tuple[cKDTree, np.ndarray]:
+    """KD-tree over dense surface samples (vertices, face centroids, area samples) -> face ids."""
+    n_area = int(np.ceil(mesh.area / spacing**2))
+    area_pts, area_faces = trimesh.sample.sample_surface(mesh, n_area, seed=seed)
+    vertex_faces = mesh.vertex_faces[:, 0]  # one incident face per vertex
+    pts = np.concatenate([mesh.vertices, mesh.triangles_center, area_pts])
+    faces = np.concatenate([vertex_faces, np.arange(len(mesh.faces)), area_faces])
+    return cKDTree(pts), faces
+
+
+def mesh_signed_distance(
+    mesh: trimesh.Trimesh,
+    points: np.ndarray,
+    candidates: int = 16,
+    sample_spacing: float | None = None,
+    chunk: int = 32768,
+    seed: int = 0,
+) -> np.ndarray:
+    """Exact signed distance from ``points`` (N, 3) to a closed, outward-oriented mesh; negative inside.
+
+    Distance: the closest point over candidate triangles (the faces of the ``candidates``
+    nearest of a dense set of surface samples, found with a KD-tree), computed with
+    ``trimesh.triangles.closest_point``. Sign: ``sign((p - c) . n)`` with ``n`` the
+    angle-weighted pseudo-normal of the closest feature, exact for watertight meshes.
+    Same result as ``trimesh.proximity.signed_distance`` (tested), ~50x faster because
+    the candidate search is vectorised instead of one R-tree query per point.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if sample_spacing is None:
+        sample_spacing = float(np.sqrt(mesh.area / 20000.0))
+    tree, sample_faces = _surface_index(mesh, sample_spacing, seed)
+    normals = _pseudo_normals(mesh)
+    k = min(candidates, tree.n)
+    out = np.empty(len(points))
+    for start in range(0, len(points), chunk):
+        p = points[start : start + chunk]  # (n, 3)
+        _, idx = tree.query(p, k=k, workers=-1)
+        face_ids = sample_faces[idx.reshape(len(p), k)]  # (n, k)
+        tris = mesh.triangles[face_ids]  # (n, k, 3, 3)
+        closest = trimesh.triangles.closest_point(tris.reshape(-1, 3, 3), np.repeat(p, k, axis=0)).reshape(len(p), k, 3)
+        dist = np.linalg.norm(closest - p[:, None, :], axis=-1)  # (n, k)
+        best = dist.argmin(axis=1)
+        rows = np.arange(len(p))
+        face = face_ids[rows, best]
+        c = closest[rows, best]
+        bary = trimesh.triangles.points_to_barycentric(mesh.triangles[face], c)  # (n, 3)
+        on_zero = bary < 1e-7
+        n_zero = on_zero.sum(axis=1)
+        pn = normals.face[face].copy()
+        edge_rows = n_zero == 1
+        if edge_rows.any():
+            opposite_vertex = on_zero[edge_rows].argmax(axis=1)
+            pn[edge_rows] = normals.edge_of_face[face[edge_rows], opposite_vertex]
+        vert_rows = n_zero >= 2
+        if vert_rows.any():
+            corner = bary[vert_rows].argmax(axis=1)
+            pn[vert_rows] = normals.vertex[mesh.faces[face[vert_rows], corner]]
+        sign = np.where(np.einsum("ij,ij->i", p - c, pn) < 0.0, -1.0, 1.0)
+        out[start : start + chunk] = sign * dist[rows, best]
+    return out
+
+
+# ----------------------------------------------------------------------------- grids
+
+
+@dataclass(frozen=True)
+class SDFGrid:
+    """Signed distances on a regular grid ``values[i, j, k]`` at ``lower + (i, j, k) * voxel``."""
+
+    values: np.ndarray  # (R, R, R) float32
+    lower: np.ndarray  # (3,) float64, grid corner (metres, object frame)
+    upper: np.ndarray  # (3,) float64, opposite corner
+
+    @property
+    def voxel(self) -> np.ndarray:
+        """Spacing between grid nodes along x, y, z (3,)."""
+        return (self.upper - self.lower) / (np.asarray(self.values.shape) - 1)
+
+
+def build_sdf_grid(mesh: trimesh.Trimesh, resolution: int, padding: float) -> SDFGrid:
+    """Exact signed distances of ``mesh`` on a ``resolution``^3 grid spanning its bounds +- ``padding``."""
+    lower = mesh.bounds[0] - padding
+    upper = mesh.bounds[1] + padding
+    axes = [np.linspace(lower[i], upper[i], resolution) for i in range(3)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)  # (R^3, 3)
+    values = mesh_signed_distance(mesh, nodes).reshape(resolution, resolution, resolution)
+    return SDFGrid(values=values.astype(np.float32), lower=lower, upper=upper)
+
+
+def _values_digest(values: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(values).tobytes()).hexdigest()
+
+
+def save_sdf_grid(grid: SDFGrid, path: Path, key: str) -> None:
+    """Write ``grid`` atomically (temp file + rename) with its cache key and a sha256 of the values."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(
+                fh,
+                values=grid.values,
+                lower=grid.lower,
+                upper=grid.upper,
+                key=np.array(key),
+                digest=np.array(_values_digest(grid.values)),
+            )
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def load_sdf_grid(path: Path, key: str) -> SDFGrid | None:
+    """Read a cached grid; ``None`` if missing, unreadable, for another key, or its hash differs."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            values = data["values"]
+            lower, upper = data["lower"], data["upper"]
+            stored_key, digest = str(data["key"]), str(data["digest"])
+    except Exception as exc:  # noqa: BLE001 - any failure to read means "rebuild"
+        log.warning("SDF cache %s is unreadable (%s); rebuilding it", path, exc)
+        return None
+    if stored_key != key or digest != _values_digest(values) or values.ndim != 3:
+        log.warning("SDF cache %s is stale or corrupt (key/hash mismatch); rebuilding it", path)
+        return None
+    return SDFGrid(values=values.astype(np.float32), lower=lower.astype(np.float64), upper=upper.astype(np.float64))
+
+
+def load_or_build_sdf_grid(mesh: trimesh.Trimesh, cache_path: Path, key: str, resolution: int, padding: float) -> SDFGrid:
+    """The cached grid at ``cache_path`` if valid for ``key``, else build it and write it there."""
+    grid = load_sdf_grid(cache_path, key)
+    if grid is not None and grid.values.shape == (resolution,) * 3:
+        return grid
+    grid = build_sdf_grid(mesh, resolution, padding)
+    save_sdf_grid(grid, cache_path, key)
+    return grid
+
+
+def trilinear_interpolate(values: torch.Tensor, lower: torch.Tensor, voxel: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Trilinear interpolation of grid ``values`` (X, Y, Z) at ``points`` (..., 3) inside the grid.
+
+    ``f(p) = sum_{corners c} w_c(p) values[c]`` with ``w_c`` the products of ``(1 - t)`` / ``t``
+    per axis, ``t = (p - lower) / voxel - floor(.)``. Written out (not ``grid_sample``) so
+    that it is differentiable to any order w.r.t. ``points`` on CPU and CUDA.
+    """
+    shape = torch.as_tensor(values.shape, device=points.device)
+    u = (points - lower) / voxel  # (..., 3) continuous index
+    i0 = torch.minimum(u.detach().floor().long().clamp_min(0), shape - 2)  # (..., 3)
+    t = u - i0.to(u.dtype)  # (..., 3), in [0, 1] inside the grid
+    flat = values.reshape(-1)
+    stride_x, stride_y = values.shape[1] * values.shape[2], values.shape[2]
+    base = i0[..., 0] * stride_x + i0[..., 1] * stride_y + i0[..., 2]
+    out = torch.zeros_like(t[..., 0])
+    for dx in (0, 1):
+        wx = t[..., 0] if dx else 1.0 - t[..., 0]
+        for dy in (0, 1):
+            wy = t[..., 1] if dy else 1.0 - t[..., 1]
+            for dz in (0, 1):
+                wz = t[..., 2] if dz else 1.0 - t[..., 2]
+                corner = flat[base + dx * stride_x + dy * stride_y + dz]
+                out = out + wx * wy * wz * corner
+    return out
+
+
+def grid_sdf(values: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Signed distance from a grid, with an outside-the-grid fallback.
+
+    Inside the grid box: trilinear interpolation. Outside: ``f(clamp(p)) + |p - clamp(p)|``,
+    the grid value at the nearest point of the box plus the distance to the box. This is an
+    upper bound of the true distance (1-Lipschitz) and exact along the box's face normals;
+    the object lies at least the grid padding inside the box, so it is never negative there.
+    """
+    voxel = (upper - lower) / (torch.as_tensor(values.shape, dtype=points.dtype, device=points.device) - 1)
+    clamped = torch.maximum(torch.minimum(points, upper), lower)
+    return trilinear_interpolate(values, lower, voxel, clamped) + safe_norm(points - clamped)

@@ -1,0 +1,204 @@
+"""``multigrasp`` — the command line of the pipeline.
+
+    multigrasp run --profile smoke              # every stage, end to end (resumes from cache)
+    multigrasp run --profile bench --until scenes
+    multigrasp status --profile smoke           # done / partial / stale / corrupt / missing per stage
+    multigrasp stages                           # the stage DAG
+    multigrasp scenes --profile smoke           # only the scenes stage
+    multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
+    multigrasp bench kinematics --json out.json # FK + distance timings
+
+Every command that reads a config takes ``--profile``, ``--config FILE``, repeatable
+``--set a.b=value``, ``--workdir``, ``--device`` and ``--runner``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from components.errors import MultigraspError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+DEFAULT_UI_PORT = 5000
+
+
+def _config_args(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("configuration")
+    group.add_argument("--profile", default="smoke",
+                       help="profile in configs/: smoke (minutes on a laptop), bench (1–2 h, real numbers), "
+                            "paper (the paper's scale, GPU/cluster). Default: smoke")
+    group.add_argument("--config", type=Path, metavar="FILE", help="YAML file merged over the profile")
+    group.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                       help="override one config value, YAML-parsed (repeatable), e.g. --set run.seed=3 "
+                            "--set objects.train=[cube,cylinder]")
+    group.add_argument("--workdir", type=Path, help="work directory for artifacts, caches and the MLflow store "
+                                                     "(default ./runs)")
+    group.add_argument("--device", choices=["cpu", "cuda"], help="torch device for model code (default cpu)")
+    group.add_argument("--runner", choices=["threads", "processes", "ray"],
+                       help="Prefect task runner for fan-out (default threads)")
+    group.add_argument("--max-workers", type=int, help="parallel workers of the task runner")
+    group.add_argument("-v", "--verbose", action="store_true", help="log cache decisions and Prefect messages")
+
+
+def _load(args: argparse.Namespace):
+    from flows.config import load_config
+
+    return load_config(args.profile, args.config, args.sets, workdir=args.workdir, device=args.device,
+                       runner=args.runner, max_workers=args.max_workers)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="multigrasp",
+        description="MultiGrasp: dexterous multi-object grasping with one Shadow Hand. Every stage is a cached "
+                    "Prefect task tracked in MLflow; re-running a command resumes where it stopped.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Start with `multigrasp run --profile smoke`, then `multigrasp ui`.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run the pipeline (every stage, or up to --until); cached stages are reused",
+                         description="Run the pipeline stages in order. Finished units are served from the cache, "
+                                     "so re-running after a crash (even kill -9) recomputes only what had not "
+                                     "finished. One MLflow parent run per invocation, one child run per stage.")
+    _config_args(run)
+    run.add_argument("--until", metavar="STAGE", help="stop after this stage (see `multigrasp stages`)")
+    run.add_argument("--only", metavar="STAGE", action="append", help="run only this stage (repeatable); "
+                                                                       "its upstream must be done")
+
+    st = sub.add_parser("status", help="list each stage of a config as done / partial / stale / corrupt / missing",
+                        description="Inspect the work dir without running anything: for every stage of the "
+                                    "given config, whether its outputs exist and verify (done), some units exist "
+                                    "(partial), only other configs' outputs exist (stale), files were altered "
+                                    "(corrupt), nothing exists (missing), or its upstream is not done (blocked).")
+    _config_args(st)
+
+    sub.add_parser("stages", help="show the stage DAG and what each stage does",
+                   description="List the pipeline's stages in execution order with their upstream stages.")
+
+    sc = sub.add_parser("scenes", help="run only the scenes stage (placements, settling, renders)",
+                        description="Sample tabletop placements for every object combination of the profile, "
+                                    "settle them in PyBullet, save them and render a few to PNG (MLflow).")
+    _config_args(sc)
+
+    ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
+                        description="Serve the MLflow UI for the work dir's store (or MLFLOW_TRACKING_URI) on "
+                                    "127.0.0.1. Stop it with Ctrl-C.")
+    ui.add_argument("--workdir", type=Path, default=Path("runs"), help="work directory (default ./runs)")
+    ui.add_argument("--port", type=int, default=DEFAULT_UI_PORT, help=f"port (default {DEFAULT_UI_PORT})")
+
+    bench = sub.add_parser("bench", help="speed benchmarks that write JSON (see benchmarks/)",
+                           description="Run a benchmark and write its JSON (medians of several runs).")
+    bench.add_argument("name", choices=["kinematics"], help="which benchmark")
+    bench.add_argument("--json", type=Path, required=True, metavar="OUT", help="where to write the JSON result")
+    bench.add_argument("--repeats", type=int, default=7, help="timed runs (median reported); default 7")
+    bench.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
+    bench.add_argument("--device", choices=["cpu", "cuda"], default="cpu", help="torch device")
+    return parser
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | None = None) -> int:
+    from flows.pipeline import run_pipeline, select_stages
+    from tasks.tracking import ui_command
+
+    cfg = _load(args)
+    modules = select_stages(only=only if only is not None else args.only, until=getattr(args, "until", None))
+    ctx = run_pipeline(cfg, modules, command=command)
+    console = ctx.console
+    executed = sum(r.executed for r in ctx.results.values())
+    cached = sum(r.cached for r in ctx.results.values())
+    all_cached = executed == 0
+    console.print(f"\n[bold]done[/] in {ctx.wall_s:.1f}s wall time — {executed} unit(s) computed, {cached} served "
+                  f"from cache{' (every stage served from cache)' if all_cached else ''}")
+    console.print(f"results:   {cfg.run.workdir}   (stages/, results/)")
+    console.print(f"MLflow:    parent run {ctx.parent_run_id} in {ctx.tracking_uri}")
+    console.print(f"open UI:   {ui_command(cfg.run.workdir)}   → http://127.0.0.1:{DEFAULT_UI_PORT}")
+    return 0
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from flows.pipeline import status
+
+    cfg = _load(args)
+    table = Table(title=f"multigrasp status — profile {cfg.profile}, workdir {cfg.run.workdir}")
+    for col in ("stage", "state", "units", "output", "note"):
+        table.add_column(col)
+    colors = {"done": "green", "partial": "yellow", "stale": "magenta", "corrupt": "red", "missing": "white",
+              "blocked": "dim"}
+    for row in status(cfg):
+        table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
+                      row.folder or "-", row.detail)
+    Console().print(table)
+    return 0
+
+
+def _cmd_stages(_: argparse.Namespace) -> int:
+    from flows.pipeline import STAGES
+
+    for i, module in enumerate(STAGES, 1):
+        after = f"  (after {', '.join(module.UPSTREAM)})" if module.UPSTREAM else ""
+        print(f"{i}. {module.STAGE:<16} {module.DESCRIPTION}{after}")
+    return 0
+
+
+def _cmd_ui(args: argparse.Namespace) -> int:
+    from tasks.tracking import artifact_root, default_tracking_uri
+
+    workdir = args.workdir.resolve()
+    if not os.environ.get("MLFLOW_TRACKING_URI") and not (workdir / "mlflow.db").exists():
+        raise MultigraspError(f"no MLflow store in {workdir} — run `multigrasp run` first or pass --workdir")
+    cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", default_tracking_uri(workdir),
+           "--default-artifact-root", artifact_root(workdir), "--host", "127.0.0.1", "--port", str(args.port)]
+    print(f"MLflow UI on http://127.0.0.1:{args.port} (Ctrl-C to stop)", flush=True)
+    try:
+        return subprocess.call(cmd)
+    except KeyboardInterrupt:
+        return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    import json
+
+    from benchmarks.kinematics import run_kinematics_benchmark
+
+    result = run_kinematics_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from flows.runtime import prefect_defaults
+
+    prefect_defaults()
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if getattr(args, "verbose", False):
+        os.environ["PREFECT_LOGGING_LEVEL"] = "INFO"
+    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui,
+                "bench": _cmd_bench, "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"])}
+    try:
+        return handlers[args.command](args)
+    except MultigraspError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("interrupted — finished units are kept; run the same command again to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""The one config tree, its profiles and its overrides.
+
+Every component owns its section (``HandConfig`` lives in ``components/hand``,
+``ObjectsConfig`` in ``components/objects`` …); this module composes them into
+:class:`PipelineConfig` and loads it::
+
+    defaults  ←  configs/<profile>.yaml  ←  --config FILE  ←  --set a.b=value (repeatable)
+
+``--set`` values are parsed as YAML (``--set objects.train=[cube,cylinder]``,
+``--set run.seed=3``).  An unknown key or a bad value raises :class:`MultigraspError`
+with one line naming the key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import difflib
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import Field, ValidationError, field_validator
+
+from components.config_base import Section
+from components.errors import MultigraspError
+from components.hand.config import HandConfig
+from components.objects.config import ObjectsConfig
+from tasks.scenes import ScenesStageConfig
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+
+class RunConfig(Section):
+    """How and where an invocation runs (not part of any cache key except ``seed``)."""
+
+    workdir: Path = Field(Path("runs"), description="Work directory: stage artifacts, caches, results, MLflow store.")
+    device: Literal["cpu", "cuda"] = Field("cpu", description="Torch device for model code.")
+    runner: Literal["threads", "processes", "ray"] = Field(
+        "threads", description="Prefect task runner used for fan-out (shards, specialists, evaluation).")
+    max_workers: int = Field(2, ge=1, le=512, description="Parallel workers of the task runner.")
+    torch_threads: int = Field(0, ge=0, le=512, description="torch.set_num_threads per worker; 0 = torch default.")
+    seed: int = Field(0, ge=0, description="Base random seed; every unit derives its own seed from it.")
+    ray_address: str | None = Field(None, description="Ray cluster address for runner=ray (None = start a local Ray).")
+
+
+class TrackingConfig(Section):
+    """MLflow tracking."""
+
+    experiment: str = Field("multigrasp", min_length=1, description="MLflow experiment name.")
+    renders: bool = Field(True, description="Log PNG/GIF renders as MLflow artifacts.")
+
+
+class PipelineConfig(Section):
+    """The whole pipeline: one section per component/stage."""
+
+    profile: str = Field("custom", description="Name of the profile this config came from.")
+    run: RunConfig = Field(default_factory=RunConfig, description="Execution settings.")
+    tracking: TrackingConfig = Field(default_factory=TrackingConfig, description="MLflow settings.")
+    hand: HandConfig = Field(default_factory=HandConfig, description="Shadow Hand model.")
+    objects: ObjectsConfig = Field(default_factory=ObjectsConfig, description="Object library and user meshes.")
+    scenes: ScenesStageConfig = Field(default_factory=ScenesStageConfig, description="Tabletop scene stage.")
+
+    @field_validator("run")
+    @classmethod
+    def _absolute_workdir(cls, run: RunConfig) -> RunConfig:
+        return run.model_copy(update={"workdir": Path(run.workdir).expanduser().resolve()})
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def available_profiles() -> list[str]:
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise MultigraspError(f"config file not found: {path} — check the path")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark else ""
+        raise MultigraspError(f"config file {path} is not valid YAML{where} — fix its syntax") from None
+    if not isinstance(data, dict):
+        raise MultigraspError(f"config file {path} must hold a mapping of sections (e.g. 'objects:'), not {type(data).__name__}")
+    return data
+
+
+def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _known_keys(model: type[Section], prefix: str = "") -> list[str]:
+    keys = []
+    for name, info in model.model_fields.items():
+        keys.append(prefix + name)
+        ann = info.annotation
+        if isinstance(ann, type) and issubclass(ann, Section):
+            keys.extend(_known_keys(ann, prefix + name + "."))
+    return keys
+
+
+def _parse_set(item: str) -> tuple[list[str], Any]:
+    if "=" not in item:
+        raise MultigraspError(f"--set needs KEY=VALUE (e.g. --set run.seed=3), got '{item}'")
+    key, raw = item.split("=", 1)
+    key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise MultigraspError(f"--set key '{key}' is not a dotted path like 'scenes.renders'")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        value = raw
+    return key.split("."), value
+
+
+def _assign(tree: dict[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+    update: Any = value
+    for part in reversed(path):
+        update = {part: update}
+    return _merge(tree, update)
+
+
+def _describe(error: dict[str, Any]) -> str:
+    loc = ".".join(str(p) for p in error["loc"])
+    if error["type"] == "extra_forbidden":
+        close = difflib.get_close_matches(loc, _known_keys(PipelineConfig), n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        return f"unknown config key '{loc}'{hint} — see `multigrasp run --help` and configs/*.yaml for valid keys"
+    value = error.get("input")
+    shown = repr(value) if not isinstance(value, dict) else "a mapping"
+    return f"bad value for '{loc}': {error['msg']} (got {shown[:80]})"
+
+
+def build_config(tree: dict[str, Any]) -> PipelineConfig:
+    """Validate a config tree, turning the first pydantic error into a one-line message."""
+    try:
+        return PipelineConfig.model_validate(tree)
+    except ValidationError as exc:
+        raise MultigraspError(_describe(exc.errors()[0])) from None
+    except MultigraspError:
+        raise
+    except (ValueError, TypeError) as exc:  # validators of components raising plain errors
+        raise MultigraspError(f"bad config: {exc}") from None
+
+
+def load_config(
+    profile: str | None = "smoke",
+    config_file: Path | None = None,
+    sets: list[str] | None = None,
+    **run_overrides: Any,
+) -> PipelineConfig:
+    """Defaults ← profile ← file ← ``--set`` ← explicit ``run`` overrides (workdir, device, …)."""
+    tree: dict[str, Any] = {}
+    if profile:
+        path = CONFIG_DIR / f"{profile}.yaml"
+        if not path.is_file():
+            raise MultigraspError(f"unknown profile '{profile}' — choose one of {', '.join(available_profiles())}")
+        tree = _merge(tree, _read_yaml(path))
+        tree.setdefault("profile", profile)
+    if config_file:
+        tree = _merge(tree, _read_yaml(Path(config_file)))
+    for item in sets or []:
+        path_parts, value = _parse_set(item)
+        tree = _assign(tree, path_parts, value)
+    run_updates = {k: v for k, v in run_overrides.items() if v is not None}
+    if run_updates:
+        tree = _merge(tree, {"run": run_updates})
+    return build_config(tree)
+
+
+def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> str:
+    """Digest of the named config sections (dotted paths), the part of a cache key from config."""
+    from tasks.artifacts import digest
+
+    dump = cfg.model_dump(mode="json")
+    picked = {}
+    for name in sections:
+        node: Any = dump
+        for part in name.split("."):
+            node = node[part]
+        picked[name] = node
+    return digest({"sections": picked, "extra": extra})

@@ -1,0 +1,159 @@
+"""The pipeline: stages in the order of the paper's figure, run, resumed and inspected.
+
+Each stage module in ``flows/`` exposes ``STAGE``, ``UPSTREAM``, ``DESCRIPTION``,
+``planned_units(cfg, upstream)`` (cache keys knowable now, for ``status``),
+``runner_flow(cfg)`` (the Prefect flow bound to the configured task runner) and
+``log_stage(ctx, result)``.  Later issues append their stages to :data:`STAGES`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+from components.errors import MultigraspError
+from flows import scenes
+from flows.config import PipelineConfig
+from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
+from tasks.artifacts import Manifest, read_manifest, valid_manifest
+from tasks.tracking import flatten
+
+STAGES: tuple[ModuleType, ...] = (scenes,)
+"""Stage modules in execution order (synthesis, generator, … are added by later issues)."""
+
+
+def stage_names() -> list[str]:
+    return [module.STAGE for module in STAGES]
+
+
+def select_stages(only: Sequence[str] | None = None, until: str | None = None) -> list[ModuleType]:
+    """Stages to run: ``only`` (plus nothing else) or every stage up to ``until`` inclusive."""
+    names = stage_names()
+    for name in list(only or []) + ([until] if until else []):
+        if name not in names:
+            raise MultigraspError(f"unknown stage '{name}' — stages are: {', '.join(names)}")
+    if only:
+        return [m for m in STAGES if m.STAGE in only]
+    if until:
+        return list(STAGES[: names.index(until) + 1])
+    return list(STAGES)
+
+
+def _upstream_manifests(cfg: PipelineConfig, module: ModuleType, done: dict[str, Manifest]) -> dict[str, Manifest]:
+    upstream = {}
+    for name in module.UPSTREAM:
+        if name in done:
+            upstream[name] = done[name]
+            continue
+        found = stage_output(cfg, name)
+        if found is None:
+            raise MultigraspError(f"stage '{module.STAGE}' needs '{name}', which has not run for this config — "
+                                  f"run `multigrasp run --until {name}` first")
+        upstream[name] = found
+    return upstream
+
+
+def stage_output(cfg: PipelineConfig, name: str) -> Manifest | None:
+    """The verified final manifest of a stage for this config, if it exists."""
+    module = STAGES[stage_names().index(name)]
+    upstream: dict[str, Manifest] = {}
+    for up in module.UPSTREAM:
+        found = stage_output(cfg, up)
+        if found is None:
+            return None
+        upstream[up] = found
+    specs = module.planned_units(cfg, upstream)
+    if not specs:
+        return None
+    return valid_manifest(specs[-1].folder) if specs[-1].unit in ("merge", "stage") else None
+
+
+def run_pipeline(cfg: PipelineConfig, modules: Sequence[ModuleType], command: str = "run") -> RunContext:
+    """Run stages in order under one MLflow parent run; re-running resumes from the cache."""
+    tracker = make_tracker(cfg)
+    parent = tracker.start_run(f"{command}:{cfg.profile}", tags={"profile": cfg.profile, "command": command})
+    tracker.log_params(parent, flatten(cfg.model_dump(mode="json")))
+    ctx = RunContext(cfg=cfg, tracker=tracker, parent_run_id=parent)
+    start = time.perf_counter()
+    status = "FAILED"
+    try:
+        with prefect_context(cfg):
+            for module in modules:
+                upstream = _upstream_manifests(cfg, module, {k: r.manifest for k, r in ctx.results.items()})
+                ctx.console.print(f"[bold]stage {module.STAGE}[/]: {module.DESCRIPTION}")
+                t0 = time.perf_counter()
+                result: StageResult = module.runner_flow(cfg)(ctx, upstream)
+                result.seconds = time.perf_counter() - t0
+                _finish_stage_run(ctx, module, result)
+                ctx.results[module.STAGE] = result
+        status = "FINISHED"
+    finally:
+        total = time.perf_counter() - start
+        tracker.log_metrics(parent, {"wall_s": total})
+        tracker.end_run(parent, status)
+        ctx.wall_s = total  # type: ignore[attr-defined]
+    return ctx
+
+
+def _finish_stage_run(ctx: RunContext, module: ModuleType, result: StageResult) -> None:
+    tracker, run_id = ctx.tracker, result.run_id
+    tags = {"cached": str(result.fully_cached).lower(), "units_executed": result.executed,
+            "units_cached": result.cached, "manifest": str(Path(result.manifest.folder) / "manifest.json")}
+    if result.fully_cached and result.manifest.producer_run_id:
+        tags["cached_from_run"] = result.manifest.producer_run_id
+    tracker.set_tags(run_id, tags)
+    tracker.log_metrics(run_id, {"stage_wall_s": result.seconds})
+    module.log_stage(ctx, result)
+    tracker.end_run(run_id)
+    how = "served from cache" if result.fully_cached else f"{result.executed} unit(s) computed, {result.cached} cached"
+    ctx.console.print(f"[bold green]✓ {module.STAGE}[/] {how} in {result.seconds:.1f}s → {result.manifest.folder}")
+
+
+# --------------------------------------------------------------------------- status
+
+
+@dataclass
+class StageStatus:
+    name: str
+    state: str          # done | partial | stale | missing | corrupt | blocked
+    done_units: int
+    known_units: int
+    folder: str | None
+    detail: str = ""
+
+
+def status(cfg: PipelineConfig) -> list[StageStatus]:
+    """Which stages of this config are done, partial, stale, corrupt, missing or blocked."""
+    rows: list[StageStatus] = []
+    outputs: dict[str, Manifest | None] = {}
+    for module in STAGES:
+        blocked = [u for u in module.UPSTREAM if outputs.get(u) is None]
+        if blocked:
+            rows.append(StageStatus(module.STAGE, "blocked", 0, 0, None, f"waits for {', '.join(blocked)}"))
+            outputs[module.STAGE] = None
+            continue
+        upstream = {u: outputs[u] for u in module.UPSTREAM}
+        specs = module.planned_units(cfg, upstream)
+        valid = [valid_manifest(s.folder) for s in specs]
+        corrupt = [s for s, v in zip(specs, valid) if v is None and (s.folder / "manifest.json").exists()]
+        n_done = sum(v is not None for v in valid)
+        final = valid[-1] if specs and specs[-1].unit in ("merge", "stage") else None
+        outputs[module.STAGE] = final
+        stage_dir = cfg.run.workdir / "stages" / module.STAGE
+        others = [p for p in stage_dir.iterdir() if p.is_dir()] if stage_dir.exists() else []
+        if final is not None:
+            state, detail = "done", "served from cache on the next run"
+        elif corrupt:
+            state, detail = "corrupt", f"{len(corrupt)} unit(s) with missing/altered files will be recomputed"
+        elif n_done:
+            state, detail = "partial", "finished units are kept; the next run computes the rest"
+        elif others:
+            state, detail = "stale", "outputs exist only for another config or code version"
+        else:
+            state, detail = "missing", ""
+        rows.append(StageStatus(module.STAGE, state, n_done, len(specs),
+                                final.folder if final else None, detail))
+    return rows

@@ -1,0 +1,220 @@
+"""What every flow needs around it: Prefect settings, the task runner, progress, MLflow runs."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rich.console import Console
+
+from components.errors import MultigraspError
+from flows.config import PipelineConfig, RunConfig
+from tasks.artifacts import Manifest
+from tasks.tracking import Tracker, default_tracking_uri
+from tasks.units import records_dir
+
+log = logging.getLogger("multigrasp")
+
+SERVER_START_TIMEOUT_S = 90.0
+
+
+def prefect_defaults() -> None:
+    """Environment defaults for Prefect, set before it is imported (user values win)."""
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    os.environ.setdefault("PREFECT_RESULTS_PERSIST_BY_DEFAULT", "true")
+    os.environ.setdefault("PREFECT_UI_ENABLED", "false")
+
+
+def make_task_runner(run: RunConfig):
+    """The configured Prefect task runner for fan-out."""
+    from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
+
+    if run.runner == "threads":
+        return ThreadPoolTaskRunner(max_workers=run.max_workers)
+    if run.runner == "processes":
+        return ProcessPoolTaskRunner(max_workers=run.max_workers)
+    try:
+        from prefect_ray import RayTaskRunner
+    except ImportError:
+        raise MultigraspError("run.runner=ray needs prefect-ray: pip install 'multigrasp[ray]' (or use threads/processes)") from None
+    return RayTaskRunner(address=run.ray_address) if run.ray_address else RayTaskRunner()
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@contextlib.contextmanager
+def local_prefect_server(workdir: Path) -> Iterator[str]:
+    """Start one ``prefect server`` on 127.0.0.1 for this invocation and stop it after.
+
+    Process-based runners otherwise start a temporary server *per worker* (DESIGN §7);
+    sharing one keeps fan-out to processes cheap.
+    """
+    import urllib.request
+
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}/api"
+    logfile = open(Path(workdir) / "prefect-server.log", "ab")
+    proc = subprocess.Popen([sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1",
+                             "--port", str(port)], stdout=logfile, stderr=subprocess.STDOUT,
+                            env={**os.environ, "PREFECT_UI_ENABLED": "false"})
+    try:
+        deadline = time.monotonic() + SERVER_START_TIMEOUT_S
+        while True:
+            try:
+                urllib.request.urlopen(url + "/health", timeout=2)
+                break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise MultigraspError(f"could not start a local Prefect server (see {logfile.name}); "
+                                          "set PREFECT_API_URL to a running one or use run.runner=threads") from None
+                time.sleep(0.5)
+        yield url
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        logfile.close()
+
+
+@contextlib.contextmanager
+def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
+    """Prefect settings for this work dir: results persisted under ``<workdir>/prefect``."""
+    prefect_defaults()
+    from prefect.settings import (PREFECT_API_URL, PREFECT_LOCAL_STORAGE_PATH,
+                                  PREFECT_RESULTS_PERSIST_BY_DEFAULT, temporary_settings)
+
+    workdir = cfg.run.workdir
+    records = records_dir(workdir)
+    records.mkdir(parents=True, exist_ok=True)
+    updates = {PREFECT_LOCAL_STORAGE_PATH: str(records), PREFECT_RESULTS_PERSIST_BY_DEFAULT: True}
+    with contextlib.ExitStack() as stack:
+        if cfg.run.runner == "processes" and not os.environ.get("PREFECT_API_URL"):
+            url = stack.enter_context(local_prefect_server(workdir))
+            updates[PREFECT_API_URL] = url
+            # process workers read the environment, not this process's settings context
+            stack.enter_context(_environ({"PREFECT_API_URL": url, "PREFECT_LOCAL_STORAGE_PATH": str(records)}))
+        stack.enter_context(temporary_settings(updates=updates))
+        yield
+
+
+@contextlib.contextmanager
+def _environ(values: dict[str, str]) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, value in old.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+# --------------------------------------------------------------------------- run context
+
+
+@dataclass
+class StageResult:
+    """A finished stage: its output manifest and how its units were obtained."""
+
+    name: str
+    manifest: Manifest
+    executed: int
+    cached: int
+    seconds: float
+    run_id: str | None = None
+
+    @property
+    def fully_cached(self) -> bool:
+        return self.executed == 0
+
+
+@dataclass
+class RunContext:
+    """Per-invocation state handed from the CLI to the flows (never module-level)."""
+
+    cfg: PipelineConfig
+    tracker: Tracker
+    parent_run_id: str
+    console: Console = field(default_factory=lambda: Console(stderr=True))
+    results: dict[str, StageResult] = field(default_factory=dict)
+
+    @property
+    def workdir(self) -> Path:
+        return self.cfg.run.workdir
+
+    @property
+    def tracking_uri(self) -> str:
+        return self.tracker.tracking_uri
+
+
+def make_tracker(cfg: PipelineConfig) -> Tracker:
+    cfg.run.workdir.mkdir(parents=True, exist_ok=True)
+    return Tracker(default_tracking_uri(cfg.run.workdir), cfg.tracking.experiment, cfg.run.workdir)
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class StageProgress:
+    """Per-stage log lines with counts and an ETA as units finish."""
+
+    def __init__(self, console: Console, stage: str, total: int):
+        self.console, self.stage, self.total = console, stage, total
+        self.done = self.cached = 0
+        self.start = time.monotonic()
+
+    def unit_finished(self, label: str, cached: bool) -> None:
+        self.done += 1
+        self.cached += int(cached)
+        elapsed = time.monotonic() - self.start
+        executed = self.done - self.cached
+        remaining = self.total - self.done
+        eta = "" if remaining == 0 or executed == 0 else f", ETA {elapsed / max(executed, 1) * remaining:.0f}s"
+        how = "cached" if cached else "computed"
+        self.console.print(f"[bold cyan]{self.stage}[/] {self.done}/{self.total} {label} ({how}) "
+                           f"elapsed {elapsed:.0f}s{eta}")
+
+
+def wait_units(futures: Sequence, progress: StageProgress) -> tuple[list[Manifest], int]:
+    """Wait for unit futures in completion order; return manifests (in submit order) and #cached.
+
+    Raises the first unit failure after all others have finished, so finished units are kept.
+    """
+    from prefect.futures import as_completed
+
+    index = {id(f): i for i, f in enumerate(futures)}
+    manifests: list[Manifest | None] = [None] * len(futures)
+    cached = 0
+    failure: BaseException | None = None
+    for future in as_completed(list(futures)):
+        state = future.state
+        try:
+            manifest = future.result()
+        except BaseException as exc:  # noqa: BLE001 - re-raised after the others finish
+            failure = failure or exc
+            progress.console.print(f"[bold red]{progress.stage}[/] unit failed: {exc}")
+            continue
+        is_cached = state.name == "Cached"
+        cached += int(is_cached)
+        manifests[index[id(future)]] = manifest
+        progress.unit_finished(f"{manifest.unit}", is_cached)
+    if failure is not None:
+        raise failure
+    return [m for m in manifests if m is not None], cached

@@ -1,0 +1,251 @@
+"""Artifacts on disk: atomic writes, content hashes, stage folders and manifests.
+
+Layout of a work directory (default ``./runs``)::
+
+    <workdir>/
+      stages/<stage>/<key>/        one folder per unit of work, content-addressed by its cache key
+          manifest.json            written last: its presence marks the unit as finished
+          <files…>                 the unit's outputs, each listed in the manifest with its sha256
+      cache/                       component caches (mesh SDF grids, convex decompositions, URDF)
+      prefect/results/             Prefect result records (one small manifest per cache key)
+      results/                     human-facing reports (JSON + markdown tables)
+      mlflow.db, mlartifacts/      the embedded MLflow store
+
+A unit's cache key is ``sha256(stage, config-section digest, upstream manifest hashes,
+component code version)``.  A manifest is *valid* only if every file it lists exists and
+still has the recorded sha256; anything else (missing file, edited file, unreadable
+manifest) makes the unit count as not done, so it is recomputed instead of trusted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+"""The project root (holds ``components/``, ``assets/``); used for code versions."""
+
+MANIFEST_NAME = "manifest.json"
+_HASH_CHUNK_BYTES = 1 << 20
+
+
+# --------------------------------------------------------------------------- hashing
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex sha256 of ``data``."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes, read in chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(_HASH_CHUNK_BYTES), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def canonical_json(obj: Any) -> str:
+    """Deterministic JSON (sorted keys, no whitespace) used for every digest."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def digest(obj: Any) -> str:
+    """sha256 of an object's canonical JSON."""
+    return sha256_bytes(canonical_json(obj).encode())
+
+
+def code_version(*relative_dirs: str, root: Path = REPO_ROOT) -> str:
+    """Digest of every source/asset file under the given project folders.
+
+    Prefect's ``TASK_SOURCE`` hashes only a task's own body, so an edit in
+    ``components/`` would not invalidate a cached result.  Hashing the component
+    package (and its assets) makes any code change produce a new cache key.
+    """
+    entries: list[tuple[str, str]] = []
+    for rel in sorted(relative_dirs):
+        base = root / rel
+        files = [base] if base.is_file() else sorted(p for p in base.rglob("*") if p.is_file())
+        for path in files:
+            if "__pycache__" in path.parts or path.suffix in {".pyc", ".pyo"}:
+                continue
+            entries.append((str(path.relative_to(root)), sha256_file(path)))
+    return digest(entries)[:16]
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` via a temp file in the same folder + ``os.replace``.
+
+    A crash (even ``kill -9``) leaves either the old file or the new one, never half of one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    """Atomically write UTF-8 text."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: Path, obj: Any) -> Path:
+    """Atomically write pretty JSON."""
+    return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def atomic_write_with(path: Path, writer) -> Path:
+    """Atomically create ``path`` with a writer callback ``writer(tmp_path)``.
+
+    For libraries that write files themselves (PNG via Pillow, Parquet via pyarrow,
+    ``torch.save``): they write to a temp path, which is then renamed into place.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        writer(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+# --------------------------------------------------------------------------- manifests
+
+
+class FileEntry(BaseModel):
+    """One output file of a unit of work."""
+
+    model_config = ConfigDict(frozen=True)
+    path: str = Field(description="Path relative to the unit's folder.")
+    sha256: str = Field(description="sha256 of the file's bytes when it was written.")
+    bytes: int = Field(description="File size in bytes.")
+
+
+class Manifest(BaseModel):
+    """What a unit of work produced: the small object tasks pass to each other."""
+
+    model_config = ConfigDict(frozen=True)
+    stage: str = Field(description="Stage name, e.g. 'scenes'.")
+    unit: str = Field(description="Unit within the stage, e.g. 'shard-003' or 'stage'.")
+    key: str = Field(description="Cache key of the unit (folder name).")
+    folder: str = Field(description="Absolute path of the unit's folder.")
+    files: dict[str, FileEntry] = Field(default_factory=dict, description="Outputs by logical name.")
+    metrics: dict[str, float] = Field(default_factory=dict, description="Scalar results of the unit.")
+    meta: dict[str, Any] = Field(default_factory=dict, description="Small JSON-able facts (counts, names).")
+    upstream: dict[str, str] = Field(default_factory=dict, description="Upstream manifest hashes by name.")
+    code_version: str = Field(description="Digest of the component code that produced it.")
+    producer_run_id: str | None = Field(default=None, description="MLflow run id that produced it.")
+    created_unix: float = Field(description="Creation time (seconds since the epoch).")
+    seconds: float = Field(default=0.0, description="Wall time the unit took to compute.")
+
+    def path(self, name: str) -> Path:
+        """Absolute path of output ``name``."""
+        return Path(self.folder) / self.files[name].path
+
+    @property
+    def hash(self) -> str:
+        """Content hash: changes whenever any output file or metric changes."""
+        return digest({"key": self.key, "files": {k: v.sha256 for k, v in self.files.items()},
+                       "metrics": self.metrics})[:20]
+
+
+def unit_key(stage: str, unit: str, section_digest: str, upstream: Mapping[str, str], code: str) -> str:
+    """Cache key of a unit: stage + unit + config digest + upstream hashes + code version."""
+    return digest({"stage": stage, "unit": unit, "config": section_digest,
+                   "upstream": dict(sorted(upstream.items())), "code": code})[:20]
+
+
+def unit_folder(workdir: Path, stage: str, key: str) -> Path:
+    """Folder of a unit: ``<workdir>/stages/<stage>/<key>``."""
+    return Path(workdir) / "stages" / stage / key
+
+
+def write_manifest(
+    *,
+    stage: str,
+    unit: str,
+    key: str,
+    folder: Path,
+    files: Mapping[str, Path],
+    code: str,
+    metrics: Mapping[str, float] | None = None,
+    meta: Mapping[str, Any] | None = None,
+    upstream: Mapping[str, str] | None = None,
+    producer_run_id: str | None = None,
+    seconds: float = 0.0,
+) -> Manifest:
+    """Hash the unit's output files and write ``manifest.json`` last (atomically)."""
+    folder = Path(folder)
+    entries = {}
+    for name, path in files.items():
+        path = Path(path)
+        entries[name] = FileEntry(path=str(path.relative_to(folder)), sha256=sha256_file(path),
+                                  bytes=path.stat().st_size)
+    manifest = Manifest(stage=stage, unit=unit, key=key, folder=str(folder), files=entries,
+                        metrics={k: float(v) for k, v in (metrics or {}).items()},
+                        meta=dict(meta or {}), upstream=dict(upstream or {}), code_version=code,
+                        producer_run_id=producer_run_id, created_unix=time.time(), seconds=seconds)
+    atomic_write_text(folder / MANIFEST_NAME, manifest.model_dump_json(indent=2) + "\n")
+    return manifest
+
+
+def read_manifest(folder: Path) -> Manifest | None:
+    """The manifest in ``folder``, or None if it is absent or unreadable (corrupt = not done)."""
+    path = Path(folder) / MANIFEST_NAME
+    if not path.is_file():
+        return None
+    try:
+        return Manifest.model_validate_json(path.read_text())
+    except (ValueError, OSError):
+        return None
+
+
+def verify(manifest: Manifest) -> list[str]:
+    """Problems with a manifest's files (empty list = valid): missing or altered outputs."""
+    problems = []
+    for name, entry in manifest.files.items():
+        path = Path(manifest.folder) / entry.path
+        if not path.is_file():
+            problems.append(f"{name}: missing {path}")
+        elif path.stat().st_size != entry.bytes or sha256_file(path) != entry.sha256:
+            problems.append(f"{name}: altered {path}")
+    return problems
+
+
+def valid_manifest(folder: Path) -> Manifest | None:
+    """The manifest in ``folder`` if it exists and all its files verify, else None."""
+    manifest = read_manifest(folder)
+    if manifest is None or verify(manifest):
+        return None
+    return manifest
+
+
+def upstream_hashes(manifests: Mapping[str, Manifest] | Iterable[tuple[str, Manifest]]) -> dict[str, str]:
+    """``{name: manifest.hash}`` for a set of upstream manifests (part of a downstream key)."""
+    items = manifests.items() if isinstance(manifests, Mapping) else manifests
+    return {name: m.hash for name, m in items}

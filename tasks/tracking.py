@@ -1,0 +1,108 @@
+"""A thin MLflow adapter that always names its run explicitly.
+
+MLflow's "active run" is thread-local and torchrl's logger calls ``start_run`` without
+``nested``, so neither works under a Prefect task runner.  Everything here goes through
+``MlflowClient`` with explicit run ids, which is safe from threads and processes.
+
+Store: ``MLFLOW_TRACKING_URI`` if set, else the embedded default
+``sqlite:///<workdir>/mlflow.db`` with artifacts in ``<workdir>/mlartifacts``.
+Runs: one parent run per CLI invocation, one child run per stage (tag ``stage``); a stage
+served from cache gets a child run tagged ``cached=true`` and ``cached_from_run=<id>``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("multigrasp")
+
+MAX_PARAM_CHARS = 6000
+
+
+def default_tracking_uri(workdir: Path) -> str:
+    """``MLFLOW_TRACKING_URI`` if set, else the embedded sqlite store of the work dir."""
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{Path(workdir).resolve() / 'mlflow.db'}"
+
+
+def artifact_root(workdir: Path) -> str:
+    """Artifact location for experiments created in the embedded store."""
+    return (Path(workdir).resolve() / "mlartifacts").as_uri()
+
+
+def ui_command(workdir: Path) -> str:
+    """The shell command that opens the MLflow UI on this work dir's store."""
+    return "multigrasp ui --workdir " + str(workdir)
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": "1"}`` (lists become their JSON-ish repr)."""
+    flat: dict[str, str] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = str(value)[:MAX_PARAM_CHARS]
+    return flat
+
+
+class Tracker:
+    """Explicit-run-id MLflow logging for one work dir / tracking URI."""
+
+    def __init__(self, tracking_uri: str, experiment: str, workdir: Path):
+        import mlflow  # noqa: F401  (heavy import kept out of module import time)
+        from mlflow.tracking import MlflowClient
+
+        self.tracking_uri = tracking_uri
+        self.client = MlflowClient(tracking_uri)
+        found = self.client.get_experiment_by_name(experiment)
+        if found is None:
+            location = artifact_root(workdir) if tracking_uri.startswith("sqlite:") else None
+            self.experiment_id = self.client.create_experiment(experiment, artifact_location=location)
+        else:
+            self.experiment_id = found.experiment_id
+
+    # ------------------------------------------------------------------ runs
+    def start_run(self, name: str, parent_id: str | None = None, tags: Mapping[str, str] | None = None) -> str:
+        """Create a run (a child of ``parent_id`` if given) and return its id."""
+        all_tags = dict(tags or {})
+        if parent_id:
+            all_tags["mlflow.parentRunId"] = parent_id
+        run = self.client.create_run(self.experiment_id, run_name=name, tags=all_tags)
+        return run.info.run_id
+
+    def end_run(self, run_id: str, status: str = "FINISHED") -> None:
+        self.client.set_terminated(run_id, status=status)
+
+    def set_tags(self, run_id: str, tags: Mapping[str, Any]) -> None:
+        for key, value in tags.items():
+            self.client.set_tag(run_id, key, str(value))
+
+    # ------------------------------------------------------------------ data
+    def log_params(self, run_id: str, params: Mapping[str, Any]) -> None:
+        from mlflow.entities import Param
+
+        items = [Param(k, str(v)[:MAX_PARAM_CHARS]) for k, v in params.items()]
+        for start in range(0, len(items), 100):
+            self.client.log_batch(run_id, params=items[start:start + 100])
+
+    def log_metrics(self, run_id: str, metrics: Mapping[str, float], step: int = 0) -> None:
+        from mlflow.entities import Metric
+        import time
+
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, step) for k, v in metrics.items()
+                 if v is not None and math.isfinite(float(v))]
+        for start in range(0, len(items), 500):
+            self.client.log_batch(run_id, metrics=items[start:start + 500])
+
+    def log_artifact(self, run_id: str, path: Path, artifact_path: str | None = None) -> None:
+        self.client.log_artifact(run_id, str(path), artifact_path)
+
+    def log_text(self, run_id: str, text: str, artifact_file: str) -> None:
+        self.client.log_text(run_id, text, artifact_file)
