@@ -180,14 +180,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from flows.runtime import prefect_defaults
-
-    prefect_defaults()
     args = build_parser().parse_args(argv)
+    if getattr(args, "verbose", False):  # before Prefect is imported: it reads its level once
+        os.environ["PREFECT_LOGGING_LEVEL"] = "INFO"
     logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    if getattr(args, "verbose", False):
-        os.environ["PREFECT_LOGGING_LEVEL"] = "INFO"
+    if not getattr(args, "verbose", False):
+        logging.getLogger("mlflow").setLevel(logging.WARNING)
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui,
                 "bench": _cmd_bench, "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"])}
     try:

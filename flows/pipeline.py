@@ -2,8 +2,9 @@
 
 Each stage module in ``flows/`` exposes ``STAGE``, ``UPSTREAM``, ``DESCRIPTION``,
 ``planned_units(cfg, upstream)`` (cache keys knowable now, for ``status``),
-``runner_flow(cfg)`` (the Prefect flow bound to the configured task runner) and
-``log_stage(ctx, result)``.  Later issues append their stages to :data:`STAGES`.
+``runner_flow(cfg)`` (the Prefect flow bound to the configured task runner, called with
+``(cfg, parent_run_id, upstream_manifests)`` — picklable inputs only, since process workers
+receive the flow's parameters) and ``log_stage(tracker, result)``.  Later issues append their stages to :data:`STAGES`.
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ def run_pipeline(cfg: PipelineConfig, modules: Sequence[ModuleType], command: st
                 upstream = _upstream_manifests(cfg, module, {k: r.manifest for k, r in ctx.results.items()})
                 ctx.console.print(f"[bold]stage {module.STAGE}[/]: {module.DESCRIPTION}")
                 t0 = time.perf_counter()
-                result: StageResult = module.runner_flow(cfg)(ctx, upstream)
+                result: StageResult = module.runner_flow(cfg)(cfg, parent, upstream)
                 result.seconds = time.perf_counter() - t0
                 _finish_stage_run(ctx, module, result)
                 ctx.results[module.STAGE] = result
@@ -106,7 +107,7 @@ def _finish_stage_run(ctx: RunContext, module: ModuleType, result: StageResult) 
         tags["cached_from_run"] = result.manifest.producer_run_id
     tracker.set_tags(run_id, tags)
     tracker.log_metrics(run_id, {"stage_wall_s": result.seconds})
-    module.log_stage(ctx, result)
+    module.log_stage(tracker, result)
     tracker.end_run(run_id)
     how = "served from cache" if result.fully_cached else f"{result.executed} unit(s) computed, {result.cached} cached"
     ctx.console.print(f"[bold green]✓ {module.STAGE}[/] {how} in {result.seconds:.1f}s → {result.manifest.folder}")

@@ -27,11 +27,11 @@ SERVER_START_TIMEOUT_S = 90.0
 
 
 def prefect_defaults() -> None:
-    """Environment defaults for Prefect, set before it is imported (user values win)."""
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
-    os.environ.setdefault("PREFECT_RESULTS_PERSIST_BY_DEFAULT", "true")
-    os.environ.setdefault("PREFECT_UI_ENABLED", "false")
+    """Environment defaults for Prefect (user values win); see ``tasks/__init__.py``."""
+    from tasks import PREFECT_ENV_DEFAULTS
+
+    for name, value in PREFECT_ENV_DEFAULTS.items():
+        os.environ.setdefault(name, value)
 
 
 def make_task_runner(run: RunConfig):
@@ -83,12 +83,23 @@ def local_prefect_server(workdir: Path) -> Iterator[str]:
                 time.sleep(0.5)
         yield url
     finally:
+        _flush_prefect_logs()
         proc.terminate()
         try:
             proc.wait(timeout=15)
         except subprocess.TimeoutExpired:
             proc.kill()
         logfile.close()
+
+
+def _flush_prefect_logs() -> None:
+    """Send Prefect's queued run logs to the API before the server it talks to goes away."""
+    try:
+        from prefect.logging.handlers import APILogHandler
+
+        APILogHandler.flush()
+    except Exception as exc:  # noqa: BLE001 - logs are best effort; never fail a finished run
+        log.debug("could not flush Prefect logs: %s", exc)
 
 
 @contextlib.contextmanager

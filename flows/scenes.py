@@ -5,7 +5,10 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import RunContext, StageProgress, StageResult, make_task_runner, wait_units
+from rich.console import Console
+
+from flows.runtime import StageProgress, StageResult, make_task_runner, make_tracker, wait_units
+from tasks.tracking import Tracker
 from tasks.artifacts import Manifest, code_version, upstream_hashes, valid_manifest
 from tasks.scenes import (RENDER_CODE_DIRS, SCENES_CODE_DIRS, SPLITS, scenes_merge_task,
                           scenes_shard_task)
@@ -70,13 +73,13 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 
 
 @flow(name="scenes", log_prints=False, validate_parameters=False)
-def scenes_flow(ctx: RunContext, upstream: dict[str, Manifest]) -> StageResult:
+def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     """Shards of sampled + settled scenes (fanned out), then merge + render."""
-    cfg = ctx.cfg
-    run_id = ctx.tracker.start_run(STAGE, parent_id=ctx.parent_run_id, tags={"stage": STAGE})
-    uri = ctx.tracking_uri
+    tracker = make_tracker(cfg)
+    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    uri = tracker.tracking_uri
     plan = shard_plan(cfg, run_id, uri)
-    progress = StageProgress(ctx.console, STAGE, total=len(plan) + 1)
+    progress = StageProgress(Console(stderr=True), STAGE, total=len(plan) + 1)
     futures = [scenes_shard_task.submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
                for spec, jobs in plan]
     shards, cached = wait_units(futures, progress)
@@ -88,9 +91,9 @@ def scenes_flow(ctx: RunContext, upstream: dict[str, Manifest]) -> StageResult:
                        cached=cached + merged_cached, seconds=0.0, run_id=run_id)
 
 
-def log_stage(ctx: RunContext, result: StageResult) -> None:
+def log_stage(tracker: Tracker, result: StageResult) -> None:
     """MLflow: stage metrics, the scene list and the renders (only when computed here)."""
-    tracker, run_id, manifest = ctx.tracker, result.run_id, result.manifest
+    run_id, manifest = result.run_id, result.manifest
     tracker.log_metrics(run_id, manifest.metrics)
     if result.fully_cached:
         return

@@ -1,0 +1,86 @@
+"""Config tree: profiles, --config files, --set overrides and one-line errors."""
+
+from pathlib import Path
+
+import pytest
+
+from components.errors import MultigraspError
+from flows.config import available_profiles, load_config, section_digest
+
+
+def test_profiles_smoke_bench_paper_load():
+    assert {"smoke", "bench", "paper"} <= set(available_profiles())
+    for profile in ("smoke", "bench", "paper"):
+        cfg = load_config(profile)
+        assert cfg.profile == profile
+        assert cfg.run.workdir.is_absolute()
+
+
+def test_set_overrides_are_yaml_parsed(tmp_path):
+    cfg = load_config("smoke", sets=["run.seed=7", "scenes.per_combination.train=3", "run.runner=processes"],
+                      workdir=tmp_path)
+    assert cfg.run.seed == 7 and cfg.scenes.per_combination.train == 3 and cfg.run.runner == "processes"
+    assert cfg.run.workdir == tmp_path.resolve()
+
+
+def test_config_file_is_merged_over_profile(tmp_path):
+    extra = tmp_path / "mine.yaml"
+    extra.write_text("scenes:\n  renders: 1\nrun:\n  seed: 5\n")
+    cfg = load_config("smoke", config_file=extra)
+    assert cfg.scenes.renders == 1 and cfg.run.seed == 5
+    assert cfg.scenes.per_combination.train == load_config("smoke").scenes.per_combination.train
+
+
+def _one_line_error(**kwargs) -> str:
+    with pytest.raises(MultigraspError) as info:
+        load_config(**kwargs)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 300
+    return message
+
+
+def test_unknown_config_key_names_the_key_and_suggests_a_fix():
+    message = _one_line_error(profile="smoke", sets=["scenes.render=3"])
+    assert "unknown config key 'scenes.render'" in message and "scenes.renders" in message
+
+
+def test_out_of_range_value_names_the_key():
+    message = _one_line_error(profile="smoke", sets=["scenes.renders=-1"])
+    assert "scenes.renders" in message and "greater than or equal to 0" in message
+
+
+def test_bad_choice_names_the_key():
+    message = _one_line_error(profile="smoke", sets=["run.runner=gpu"])
+    assert "run.runner" in message
+
+
+def test_unknown_profile_lists_the_profiles():
+    message = _one_line_error(profile="fast")
+    assert "unknown profile 'fast'" in message and "smoke" in message
+
+
+def test_missing_or_invalid_config_file(tmp_path):
+    assert "not found" in _one_line_error(profile="smoke", config_file=tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("scenes: [unclosed\n")
+    assert "not valid YAML" in _one_line_error(profile="smoke", config_file=bad)
+
+
+def test_set_without_equals_sign():
+    assert "KEY=VALUE" in _one_line_error(profile="smoke", sets=["run.seed"])
+
+
+def test_section_digest_changes_only_with_its_section():
+    a = load_config("smoke")
+    b = load_config("smoke", sets=["run.seed=1"])
+    c = load_config("smoke", sets=["scenes.renders=2"])
+    assert section_digest(a, "objects") == section_digest(b, "objects")
+    assert section_digest(a, "run.seed") != section_digest(b, "run.seed")
+    assert section_digest(a, "scenes.sampling") == section_digest(c, "scenes.sampling")
+
+
+def test_config_is_frozen():
+    cfg = load_config("smoke")
+    with pytest.raises(Exception):
+        cfg.run.seed = 3  # type: ignore[misc]
+    assert isinstance(cfg.run.workdir, Path)

@@ -1,0 +1,127 @@
+"""End-to-end flow tests under the smoke profile: caching, resume, MLflow, status, CLI errors."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+import tasks.scenes
+from flows.cli import main
+from flows.config import load_config
+from flows.pipeline import status
+from tasks.artifacts import read_manifest
+from tasks.units import executions
+
+pytestmark = pytest.mark.slow
+
+# A small scenes stage: 8 single-object jobs in 2 shards, 1 render.
+SMALL = ["scenes.pairs=false", "scenes.many=false", "scenes.jobs_per_shard=4", "scenes.renders=1",
+         "scenes.per_combination={train: 1, Pl: 0, Com: 0, Geo: 0, many: 0}"]
+
+
+def _run(workdir, *extra: str) -> int:
+    argv = ["run", "--profile", "smoke", "--workdir", str(workdir)]
+    for item in extra:
+        argv += ["--set", item]
+    return main(argv)
+
+
+@pytest.fixture(scope="module")
+def smoke_runs(tmp_path_factory):
+    """The smoke pipeline run twice in one work dir (second run must be all cache)."""
+    workdir = tmp_path_factory.mktemp("smoke")
+    assert _run(workdir) == 0
+    first = executions(workdir)
+    assert _run(workdir) == 0
+    return workdir, first, executions(workdir)
+
+
+def test_second_smoke_run_serves_every_stage_from_cache(smoke_runs):
+    workdir, first, after_second = smoke_runs
+    assert first, "the first run computed nothing"
+    assert after_second == first, "the second run recomputed units"
+
+
+def test_smoke_run_prints_its_wall_time(tmp_path, capsys):
+    assert _run(tmp_path, *SMALL) == 0
+    assert _run(tmp_path, *SMALL) == 0
+    err = capsys.readouterr().err
+    assert len(re.findall(r"done in [0-9.]+s wall time", err)) == 2
+    assert "every stage served from cache" in err
+    assert "multigrasp ui --workdir" in err
+
+
+def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs):
+    from mlflow.tracking import MlflowClient
+
+    from flows.pipeline import stage_names
+
+    workdir, _, _ = smoke_runs
+    client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("multigrasp")
+    runs = client.search_runs([experiment.experiment_id], max_results=1000)
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(parents) == 2  # one per invocation
+    first_parent = min(parents, key=lambda r: r.info.start_time)
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == first_parent.info.run_id]
+    assert sorted(r.data.tags["stage"] for r in children) == sorted(stage_names())
+    assert first_parent.data.params["profile"] == "smoke"
+    scenes_run = next(r for r in children if r.data.tags["stage"] == "scenes")
+    pngs = [a.path for a in client.list_artifacts(scenes_run.info.run_id, "renders")]
+    assert pngs and all(p.endswith(".png") for p in pngs)
+    assert scenes_run.data.metrics["scenes"] > 0
+
+    second_parent = max(parents, key=lambda r: r.info.start_time)
+    cached = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == second_parent.info.run_id]
+    assert cached and all(r.data.tags["cached"] == "true" for r in cached)
+    assert all(r.data.tags["cached_from_run"] in {c.info.run_id for c in children} for r in cached)
+
+
+def test_resume_after_downstream_failure_reuses_upstream_units(tmp_path, monkeypatch):
+    real = tasks.scenes.merge_and_render
+
+    def crash(*args, **kwargs):
+        raise RuntimeError("simulated crash in the merge unit")
+
+    monkeypatch.setattr(tasks.scenes, "merge_and_render", crash)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        _run(tmp_path, *SMALL)
+    first = executions(tmp_path)
+    assert sorted(first) == ["scenes/merge", "scenes/shard-000", "scenes/shard-001"]
+
+    monkeypatch.setattr(tasks.scenes, "merge_and_render", real)
+    assert _run(tmp_path, *SMALL) == 0
+    # only the failed unit ran again: the shards were served from the cache
+    assert executions(tmp_path)[len(first):] == ["scenes/merge"]
+
+
+def test_deleted_artifact_is_recomputed_not_trusted(tmp_path):
+    assert _run(tmp_path, *SMALL) == 0
+    cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
+    shard = next(p for p in (tmp_path / "stages" / "scenes").iterdir() if read_manifest(p).unit == "shard-000")
+    (shard / "scenes.json").unlink()
+    assert [r.state for r in status(cfg)] == ["corrupt"]
+    before = len(executions(tmp_path))
+    assert _run(tmp_path, *SMALL) == 0
+    assert executions(tmp_path)[before:] == ["scenes/shard-000"]
+    assert (shard / "scenes.json").is_file()
+    assert [r.state for r in status(cfg)] == ["done"]
+
+
+def test_status_lists_missing_then_done(tmp_path, capsys):
+    cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
+    assert [r.state for r in status(cfg)] == ["missing"]
+    assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path)] + sum([["--set", s] for s in SMALL], [])) == 0
+    assert "missing" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("override, expected", [
+    ("objects.train=[cube,banana]", "banana"),
+    ("scenes.bogus=1", "unknown config key 'scenes.bogus'"),
+    ("scenes.renders=-4", "scenes.renders"),
+])
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, override, expected):
+    assert main(["run", "--profile", "smoke", "--workdir", str(tmp_path), "--set", override]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and expected in err[0]
