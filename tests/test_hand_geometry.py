@@ -17,7 +17,13 @@ from components.hand import (
     point_capsule_signed_distance,
     point_cylinder_signed_distance,
 )
-from components.hand.geometry import capsule_prism_signed_distance, nearest_capsule, nearest_prism, point_prism_signed_distance, to_local
+from components.hand.geometry import (
+    capsule_prism_signed_distance,
+    nearest_capsule,
+    nearest_prism,
+    point_prism_signed_distance,
+    to_local,
+)
 
 EPS = HandConfig().distance_epsilon
 PARALLEL_EPS = 1e-12
@@ -178,7 +184,7 @@ def test_capsule_box_and_cylinder_distances_match_dense_line_search():
     rng = np.random.default_rng(5)
     half = torch.tensor([0.032, 0.0111, 0.049], dtype=DTYPE)
     t_dense = torch.linspace(0, 1, 100001, dtype=DTYPE)
-    for _ in range(20):
+    for _ in range(12):
         a, b = (torch.tensor(rng.uniform(-0.08, 0.08, 3)) for _ in range(2))
         rot = torch.tensor(np.linalg.qr(rng.normal(size=(3, 3)))[0])
         centre = torch.tensor(rng.uniform(-0.01, 0.01, 3))
@@ -318,20 +324,3 @@ def test_geom_lowest_heights_bound_the_surface(hand):
         below = torch.cat([grid_xy, torch.full((len(grid_xy), 1), lowest[b].item() - 1e-4, dtype=DTYPE)], -1)
         assert (hand.signed_distance(below[None], p[b:b + 1], R[b:b + 1], q[b:b + 1]) > 0).all()
 
-
-@pytest.mark.slow
-def test_compiled_distance_kernels_match_eager():
-    """compile_distance_kernels=True (torch.compile, ~15-30 s to compile) gives the eager distances."""
-    eager = HandModel(HandConfig(), dtype=torch.float32)
-    compiled = HandModel(HandConfig(compile_distance_kernels=True), dtype=torch.float32)
-    generator = torch.Generator().manual_seed(11)
-    q = eager.sample_joint_angles(4, generator).requires_grad_()
-    p = torch.zeros(4, 3, requires_grad=True)
-    R = torch.eye(3).expand(4, 3, 3).clone().requires_grad_()
-    points = torch.randn(4, 300, 3, generator=generator) * 0.06 + torch.tensor([0.0, 0.0, 0.08])
-    d_eager = eager.signed_distance(points, p, R, q)
-    d_compiled = compiled.signed_distance(points, p, R, q)
-    assert torch.allclose(d_eager, d_compiled, atol=2e-6)
-    grads = [torch.autograd.grad(d.sum(), (p, R, q)) for d in (d_eager, d_compiled)]
-    for g_eager, g_compiled in zip(*grads):
-        assert torch.allclose(g_eager, g_compiled, atol=1e-4)

@@ -24,7 +24,8 @@ def identity_pose(batch):
 def test_region_and_keypoint_counts(hand):
     assert len(hand.region_names) == 17
     assert hand.region_names[:2] == ["palm", "palm_hypothenar"]
-    assert sorted(hand.region_names[2:]) == sorted(f"{f}_{s}" for f in FINGERS for s in ("proximal", "middle", "distal"))
+    segments = ("proximal", "middle", "distal")
+    assert sorted(hand.region_names[2:]) == sorted(f"{f}_{s}" for f in FINGERS for s in segments)
     assert hand.contact_region_of.shape == (17 * POINTS_PER_REGION,)
     assert torch.equal(torch.bincount(hand.contact_region_of), torch.full((17,), POINTS_PER_REGION))
     p, R = identity_pose(4)

@@ -440,19 +440,27 @@ class HandCollision:
                 return values.amin(0)
             best, kind = values.min(0)  # (B, N)
 
-        dist = best.clone()  # (B, N); the winners' values are replaced by differentiable recomputations
-        b, n = (kind == 0).nonzero(as_tuple=True)  # (M,), (M,): points whose nearest primitive is a capsule
-        g = found[0][1][b, n]  # (M,)
-        d = point_capsule_signed_distance(x[b, n], prims.capsule_a[b, g], prims.capsule_b[b, g],
-                                          self.capsule_radius[g], eps=self.eps)
-        dist = dist.index_put((b, n), d)
-        if self.prism_ids:
-            b, n = (kind == 1).nonzero(as_tuple=True)
-            g = found[1][1][b, n]
-            local = to_local(x[b, n], prims.prism_centre[b, g], prims.prism_rot[b, g])  # (M, 3)
-            d = point_prism_signed_distance(local, self.prism_half[g], self.prism_rounding[g], eps=self.eps)
-            dist = dist.index_put((b, n), d)
-        return dist
+        batch, n_points = best.shape
+        flat_x = x.reshape(-1, 3)  # (B N, 3)
+        dist = x.new_zeros(batch * n_points)  # each point receives exactly one kind's value below
+        for k in range(len(found)):
+            point = (kind.reshape(-1) == k).nonzero().squeeze(-1)  # (M,) flat indices of the points kind k wins
+            row = point // n_points  # (M,) batch index
+            geom = found[k][1].reshape(-1).index_select(0, point)  # (M,) primitive within its kind
+            xm = flat_x.index_select(0, point)  # (M, 3)
+            if k == 0:
+                n_geoms = prims.capsule_a.shape[1]
+                a = prims.capsule_a.reshape(-1, 3).index_select(0, row * n_geoms + geom)
+                b = prims.capsule_b.reshape(-1, 3).index_select(0, row * n_geoms + geom)
+                d = point_capsule_signed_distance(xm, a, b, self.capsule_radius[geom], eps=self.eps)
+            else:
+                n_geoms = prims.prism_centre.shape[1]
+                centre = prims.prism_centre.reshape(-1, 3).index_select(0, row * n_geoms + geom)
+                rot = prims.prism_rot.reshape(-1, 3, 3).index_select(0, row * n_geoms + geom)
+                d = point_prism_signed_distance(to_local(xm, centre, rot), self.prism_half[geom],
+                                                self.prism_rounding[geom], eps=self.eps)
+            dist = dist.index_add(0, point, d)
+        return dist.reshape(batch, n_points)
 
     def pair_signed_distances(self, prims: Primitives) -> Tensor:
         """Signed distance of every self-collision pair (``pair_names`` order).   -> (B, P)."""

@@ -87,18 +87,21 @@ class HandModel:
         return self.kinematics.actuated(q22)
 
     def open_pose(self) -> Tensor:
-        """The flat open hand: every joint at 0 (inside every range; fingers straight, thumb in the palm plane).  (22,)"""
+        """The flat open hand: every joint at 0 (inside every range; fingers straight, thumb in the palm
+        plane, no self-penetration).   -> (22,)"""
         return torch.zeros(len(self.joint_names), dtype=self.dtype, device=self.device)
 
     def sample_joint_angles(self, n: int, generator: Optional[torch.Generator] = None) -> Tensor:
-        """n poses, the 18 actuated angles uniform in their ranges, J0 from the coupling.   -> (n, 22)."""
+        """n poses: the 18 actuated angles uniform in their ranges, each J0 from the coupling (it sits at
+        its upper limit when J1 > 1.571 / 1.1418 = 1.376 rad).   -> (n, 22)."""
         lower, upper = self.kinematics.actuated(self.joint_limits.T)  # (18,), (18,)
         u = torch.rand(n, len(self.actuated_joint_names), generator=generator, dtype=self.dtype,
                        device=self.device if generator is None else generator.device)
         return self.expand_actuated(lower + u.to(self.device) * (upper - lower))
 
     def joint_limit_violation(self, q: Tensor) -> Tensor:
-        """Prior energy of joint limits:  E_prior = sum_j relu(q_j - upper_j) + relu(lower_j - q_j).   (B, 22) -> (B,)."""
+        """Prior energy of joint limits:  E_prior = sum_j relu(q_j - upper_j) + relu(lower_j - q_j).
+        (B, 22) -> (B,)."""
         lower, upper = self.joint_limits.unbind(-1)
         return (torch.relu(q - upper) + torch.relu(lower - q)).sum(-1)
 

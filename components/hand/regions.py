@@ -39,7 +39,8 @@ class LinkPoints:
 
 
 def golden_lattice(n: int) -> np.ndarray:
-    """n points of the unit square:  u_i = (i + 1/2) / n,  v_i = frac(1/2 + i / phi)  (phi = golden ratio).  -> (n, 2)."""
+    """n points of the unit square:  u_i = (i + 1/2) / n,  v_i = frac(1/2 + i / phi)  (phi: golden ratio).
+    -> (n, 2)."""
     i = np.arange(n, dtype=np.float64)
     return np.stack([(i + 0.5) / n, np.mod(0.5 + i * INV_GOLDEN, 1.0)], axis=1)
 

@@ -15,9 +15,11 @@ written from the same :class:`~components.hand.mjcf.HandSpec` the torch model us
 * **Collision** = exactly the analytic primitives of :mod:`components.hand.geometry`:
   ``<capsule radius length>`` (PyBullet's URDF extension, axis z, ``length`` = cylinder part
   = 2 x half-length), ``<box>`` and, for the forearm, ``<cylinder>``.  So what the torch model
-  calls penetration-free is penetration-free in PyBullet too.
+  calls penetration-free is penetration-free in PyBullet too.  PyBullet turns URDF cylinders into
+  convex meshes unless the URDF is loaded with ``flags=pybullet.URDF_USE_IMPLICIT_CYLINDER``.
 * **Visual** = the package's STL meshes by absolute path with their MJCF scale (0.001 for the
-  millimetre files) at the pose of the file frame (see :func:`components.hand.mjcf._visual`).
+  millimetre files) at the pose of the file frame (MuJoCo re-centres meshes; see
+  :mod:`components.hand.mjcf`), so the URDF is only valid on the machine that wrote it.
 * **Inertials** = compiled MuJoCo body mass, centre of mass, principal inertia and its axes.
 
 Orientations are written as URDF ``rpy`` (fixed-axis roll, pitch, yaw: R = Rz(y) Ry(p) Rx(r)).
