@@ -46,7 +46,7 @@ class ObjectsConfig(Section):
     )
     many_object: str = Field("small_cylinder", description="Object repeated in the 3-/4-/5-object experiments (the paper uses small cylinders).")
     many_counts: list[int] = Field(default_factory=lambda: [3, 4, 5], description="Numbers of objects in the many-object experiments.")
-    sdf_grid_resolution: int = Field(64, ge=8, le=512, description="Voxels per axis of the cached mesh SDF grids (64: max error < 0.5 mm within 1 cm of the duck/bunny surface; build ~10 s per mesh).")
+    sdf_grid_resolution: int = Field(64, ge=8, le=512, description="Voxels per axis of the cached mesh SDF grids (64: max error < 0.6 mm within 1 cm of the duck/bunny surface; build ~8-12 s per mesh on 2 cores).")
     sdf_grid_padding_m: float = Field(0.015, gt=0, description="Margin of the SDF grid around the mesh bounds (m); outside it the distance is extrapolated.")
     surface_points: int = Field(2048, ge=16, description="Default number of surface samples per object (point clouds for the networks).")
     max_graspable_width_m: float = Field(
@@ -64,7 +64,7 @@ class ObjectsConfig(Section):
         description="Keep the most probable resting poses that together hold this fraction of the probability (drops rare, barely-stable facets).",
     )
     stable_pose_max_count: int = Field(64, ge=1, description="At most this many resting poses per object (a sphere has one per facet; they are all alike).")
-    stable_pose_drop_m: float = Field(0.002, ge=0, description="Verification: each resting pose is dropped from this height above the table in PyBullet.")
+    stable_pose_drop_m: float = Field(0.005, ge=0, description="Verification: each resting pose is dropped from this height above the table in PyBullet.")
     stable_pose_check_s: float = Field(1.0, gt=0, description="Verification: simulated time after the drop.")
     stable_pose_check_hz: int = Field(240, ge=30, description="Verification: PyBullet physics rate (Hz).")
     stable_pose_tolerance_m: float = Field(0.001, gt=0, description="Verification: a pose is kept if the object ends within this distance of its resting position...")

@@ -44,6 +44,8 @@ PYBULLET_DATA_PREFIX = "pybullet_data:"
 STANDARD_GRAVITY_M_S2 = 9.81
 #: Free space between the copies of an object in the resting-pose check (m).
 POSE_CHECK_GAP_M = 0.05
+#: A suggested `scale:` for a too-large mesh brings its width to this fraction of the limit.
+SCALE_SUGGESTION_FILL = 0.8
 #: Oversampling factor of the random pool that farthest-point sampling thins to ``n`` points.
 SURFACE_POOL_FACTOR = 4
 
@@ -90,7 +92,7 @@ def read_library_file(path: Path) -> LibraryFile:
 
 
 def _palette_color(name: str) -> tuple[float, float, float, float]:
-    """A stable colour derived from the object's name (for objects without one)."""
+    """A stable colour derived from the object's name (for objects without one): RGB in [0.3, 0.9], opaque."""
     h = int(hashlib.sha256(name.encode()).hexdigest()[:6], 16)
     return (0.3 + 0.6 * ((h >> 16) & 255) / 255, 0.3 + 0.6 * ((h >> 8) & 255) / 255, 0.3 + 0.6 * (h & 255) / 255, 1.0)
 
@@ -534,7 +536,7 @@ class ObjectLibrary:
         limit = self.cfg.max_graspable_width_m
         if width > limit:
             scale_now = shape.scale if isinstance(shape, MeshShape) else 1.0
-            suggestion = scale_now * 0.8 * limit / width
+            suggestion = scale_now * SCALE_SUGGESTION_FILL * limit / width
             raise MultigraspError(
                 f"object '{name}' is too large for the hand: {width * 100:.1f} cm across on its narrowest horizontal side when resting "
                 f"(limit objects.max_graspable_width_m = {limit * 100:.1f} cm); set `scale: {suggestion:.3g}` (now {scale_now:g}) or check the file's units"
