@@ -20,6 +20,7 @@ from flows import scenes
 from flows.config import PipelineConfig
 from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
 from tasks.artifacts import Manifest, read_manifest, valid_manifest
+from tasks.preflight import validate_inputs
 from tasks.tracking import flatten
 
 STAGES: tuple[ModuleType, ...] = (scenes,)
@@ -74,6 +75,7 @@ def stage_output(cfg: PipelineConfig, name: str) -> Manifest | None:
 
 def run_pipeline(cfg: PipelineConfig, modules: Sequence[ModuleType], command: str = "run") -> RunContext:
     """Run stages in order under one MLflow parent run; re-running resumes from the cache."""
+    validate_inputs(cfg.objects, cfg.hand, cfg.run.workdir)
     tracker = make_tracker(cfg)
     parent = tracker.start_run(f"{command}:{cfg.profile}", tags={"profile": cfg.profile, "command": command})
     tracker.log_params(parent, flatten(cfg.model_dump(mode="json")))

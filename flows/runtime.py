@@ -102,10 +102,24 @@ def _flush_prefect_logs() -> None:
         log.debug("could not flush Prefect logs: %s", exc)
 
 
+class HideUserErrorTracebacks(logging.Filter):
+    """Drop Prefect's traceback records for MultigraspError: the CLI prints them as one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, MultigraspError)
+
+
 @contextlib.contextmanager
 def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
     """Prefect settings for this work dir: results persisted under ``<workdir>/prefect``."""
     prefect_defaults()
+    from prefect.logging.configuration import ensure_logging_setup
+
+    ensure_logging_setup()
+    for handler in [h for name in ("prefect", "") for h in logging.getLogger(name).handlers]:
+        if not any(isinstance(f, HideUserErrorTracebacks) for f in handler.filters):
+            handler.addFilter(HideUserErrorTracebacks())
     from prefect.settings import (PREFECT_API_URL, PREFECT_LOCAL_STORAGE_PATH,
                                   PREFECT_RESULTS_PERSIST_BY_DEFAULT, temporary_settings)
 
@@ -163,7 +177,7 @@ class RunContext:
     cfg: PipelineConfig
     tracker: Tracker
     parent_run_id: str
-    console: Console = field(default_factory=lambda: Console(stderr=True))
+    console: Console = field(default_factory=lambda: make_console())
     results: dict[str, StageResult] = field(default_factory=dict)
 
     @property
@@ -173,6 +187,11 @@ class RunContext:
     @property
     def tracking_uri(self) -> str:
         return self.tracker.tracking_uri
+
+
+def make_console() -> Console:
+    """Progress goes to stderr; soft wrap keeps lines whole in logs and pipes."""
+    return Console(stderr=True, soft_wrap=True)
 
 
 def make_tracker(cfg: PipelineConfig) -> Tracker:
@@ -203,9 +222,11 @@ class StageProgress:
                            f"elapsed {elapsed:.0f}s{eta}")
 
 
-def wait_units(futures: Sequence, progress: StageProgress) -> tuple[list[Manifest], int]:
+def wait_units(futures: Sequence, progress: StageProgress, run_id: str | None) -> tuple[list[Manifest], int]:
     """Wait for unit futures in completion order; return manifests (in submit order) and #cached.
 
+    A unit counts as served from cache when its manifest was produced by another MLflow run
+    than this stage's ``run_id`` (a Prefect cache hit, or verified outputs reused on disk).
     Raises the first unit failure after all others have finished, so finished units are kept.
     """
     from prefect.futures import as_completed
@@ -215,14 +236,13 @@ def wait_units(futures: Sequence, progress: StageProgress) -> tuple[list[Manifes
     cached = 0
     failure: BaseException | None = None
     for future in as_completed(list(futures)):
-        state = future.state
         try:
             manifest = future.result()
         except BaseException as exc:  # noqa: BLE001 - re-raised after the others finish
             failure = failure or exc
             progress.console.print(f"[bold red]{progress.stage}[/] unit failed: {exc}")
             continue
-        is_cached = state.name == "Cached"
+        is_cached = manifest.producer_run_id != run_id
         cached += int(is_cached)
         manifests[index[id(future)]] = manifest
         progress.unit_finished(f"{manifest.unit}", is_cached)

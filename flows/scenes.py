@@ -5,9 +5,7 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from rich.console import Console
-
-from flows.runtime import StageProgress, StageResult, make_task_runner, make_tracker, wait_units
+from flows.runtime import StageProgress, StageResult, make_console, make_task_runner, make_tracker, wait_units
 from tasks.tracking import Tracker
 from tasks.artifacts import Manifest, code_version, upstream_hashes, valid_manifest
 from tasks.scenes import (RENDER_CODE_DIRS, SCENES_CODE_DIRS, SPLITS, scenes_merge_task,
@@ -79,13 +77,13 @@ def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Man
     run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, run_id, uri)
-    progress = StageProgress(Console(stderr=True), STAGE, total=len(plan) + 1)
+    progress = StageProgress(make_console(), STAGE, total=len(plan) + 1)
     futures = [scenes_shard_task.submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
                for spec, jobs in plan]
-    shards, cached = wait_units(futures, progress)
+    shards, cached = wait_units(futures, progress, run_id)
     spec = merge_spec(cfg, shards, run_id, uri)
     merged, merged_cached = wait_units(
-        [scenes_merge_task.submit(spec, shards, cfg.scenes, cfg.objects, cfg.hand, cfg.tracking.renders)], progress)
+        [scenes_merge_task.submit(spec, shards, cfg.scenes, cfg.objects, cfg.hand, cfg.tracking.renders)], progress, run_id)
     manifest = merged[0]
     return StageResult(STAGE, manifest, executed=len(plan) + 1 - cached - merged_cached,
                        cached=cached + merged_cached, seconds=0.0, run_id=run_id)

@@ -23,6 +23,7 @@ from components.config_base import Section
 from components.execution.cameras import CameraConfig
 from components.objects.config import ObjectsConfig, ScenesConfig
 from tasks.artifacts import Manifest, atomic_write_json
+from tasks.preflight import cache_dir
 from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
 
 SCENES_CODE_DIRS = ("components/objects", "assets/objects", "tasks/scenes.py")
@@ -62,11 +63,11 @@ def job_seed(base_seed: int, split: str, combo: tuple[str, ...]) -> list[int]:
 
 
 def sample_shard(folder: Path, objects: ObjectsConfig, sampling: ScenesConfig,
-                 jobs: list[tuple[str, tuple[str, ...], int]], base_seed: int, cache_dir: Path) -> UnitOutput:
+                 jobs: list[tuple[str, tuple[str, ...], int]], base_seed: int, cache: Path) -> UnitOutput:
     """Sample and settle the scenes of one shard into ``folder/scenes.json``."""
     from components.objects import ObjectLibrary, sample_settled_scenes
 
-    library = ObjectLibrary(objects, cache_dir=cache_dir)
+    library = ObjectLibrary(objects, cache_dir=cache)
     records: list[dict[str, Any]] = []
     attempted = 0
     for split, combo, n in jobs:
@@ -87,12 +88,12 @@ def sample_shard(folder: Path, objects: ObjectsConfig, sampling: ScenesConfig,
 def scenes_shard_task(spec: UnitSpec, objects: ObjectsConfig, sampling: ScenesConfig,
                       jobs: list[tuple[str, tuple[str, ...], int]], base_seed: int) -> Manifest:
     """Prefect unit: one shard of settled scenes."""
-    cache_dir = Path(spec.workdir) / "cache"
-    return run_unit(spec, lambda folder: sample_shard(folder, objects, sampling, jobs, base_seed, cache_dir))
+    return run_unit(spec, lambda folder: sample_shard(folder, objects, sampling, jobs, base_seed,
+                                                      cache_dir(Path(spec.workdir))))
 
 
 def merge_and_render(folder: Path, shards: list[Manifest], stage: ScenesStageConfig, objects: ObjectsConfig,
-                     hand_cfg, cache_dir: Path, render: bool) -> UnitOutput:
+                     hand_cfg, cache: Path, render: bool) -> UnitOutput:
     """Concatenate shard scenes, give each an id, render a few, compute statistics."""
     scenes: list[dict[str, Any]] = []
     for shard in shards:
@@ -115,9 +116,9 @@ def merge_and_render(folder: Path, shards: list[Manifest], stage: ScenesStageCon
         from components.hand import HandModel
         from components.objects import ObjectLibrary, Scene
 
-        library = ObjectLibrary(objects, cache_dir=cache_dir)
+        library = ObjectLibrary(objects, cache_dir=cache)
         hand = HandModel(hand_cfg)
-        urdf = hand.export_urdf(cache_dir / "hand" / "shadow_hand.urdf")
+        urdf = hand.export_urdf(cache / "hand" / "shadow_hand.urdf")
         step = max(1, len(scenes) // stage.renders)
         for i, record in enumerate(scenes[::step][: stage.renders]):
             path = folder / f"render_{i:02d}.png"
@@ -130,5 +131,5 @@ def merge_and_render(folder: Path, shards: list[Manifest], stage: ScenesStageCon
 def scenes_merge_task(spec: UnitSpec, shards: list[Manifest], stage: ScenesStageConfig, objects: ObjectsConfig,
                       hand_cfg, render: bool) -> Manifest:
     """Prefect unit: merge shards, render PNGs, stage statistics."""
-    cache_dir = Path(spec.workdir) / "cache"
-    return run_unit(spec, lambda folder: merge_and_render(folder, shards, stage, objects, hand_cfg, cache_dir, render))
+    return run_unit(spec, lambda folder: merge_and_render(folder, shards, stage, objects, hand_cfg,
+                                                          cache_dir(Path(spec.workdir)), render))

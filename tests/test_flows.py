@@ -125,3 +125,16 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, override, expect
     assert main(["run", "--profile", "smoke", "--workdir", str(tmp_path), "--set", override]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and expected in err[0]
+
+
+def test_user_error_inside_a_unit_is_one_line_without_traceback(tmp_path, capsys, monkeypatch):
+    from components.errors import MultigraspError
+
+    def impossible(*args, **kwargs):
+        raise MultigraspError("could not place cube, sphere without overlap in 2000 tries — enlarge xy_half_range_m")
+
+    monkeypatch.setattr(tasks.scenes, "sample_shard", impossible)
+    assert _run(tmp_path, *SMALL) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith("error: could not place cube, sphere")
