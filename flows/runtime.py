@@ -117,6 +117,8 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
     from prefect.logging.configuration import ensure_logging_setup
 
     ensure_logging_setup()
+    if os.environ.get("PREFECT_LOGGING_LEVEL", "WARNING") != "INFO":
+        logging.getLogger("mlflow").setLevel(logging.WARNING)  # mlflow resets its level on import
     for handler in [h for name in ("prefect", "") for h in logging.getLogger(name).handlers]:
         if not any(isinstance(f, HideUserErrorTracebacks) for f in handler.filters):
             handler.addFilter(HideUserErrorTracebacks())

@@ -138,3 +138,42 @@ def test_user_error_inside_a_unit_is_one_line_without_traceback(tmp_path, capsys
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1].startswith("error: could not place cube, sphere")
+
+
+def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    workdir, _, _ = smoke_runs
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "ui", "--workdir", str(workdir), "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        body = b""
+        while time.monotonic() < deadline:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/2.0/mlflow/experiments/search?max_results=5",
+                                            timeout=2) as response:
+                    body = response.read()
+                break
+            except OSError:
+                assert proc.poll() is None, proc.stdout.read().decode()
+                time.sleep(1)
+        assert b"multigrasp" in body
+    finally:
+        import os
+        import signal
+
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+
+
+def test_ui_without_a_store_says_what_to_run(tmp_path, capsys):
+    assert main(["ui", "--workdir", str(tmp_path)]) == 2
+    assert "run `multigrasp run` first" in capsys.readouterr().err
