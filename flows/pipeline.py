@@ -19,7 +19,7 @@ from components.errors import MultigraspError
 from flows import scenes
 from flows.config import PipelineConfig
 from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
-from tasks.artifacts import Manifest, read_manifest, valid_manifest
+from tasks.artifacts import Manifest, valid_manifest
 from tasks.preflight import validate_inputs
 from tasks.tracking import flatten
 

@@ -19,7 +19,6 @@ manifest) makes the unit count as not done, so it is recomputed instead of trust
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import tempfile
@@ -30,28 +29,15 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from components.fileio import atomic_write_bytes, atomic_write_text, sha256_bytes, sha256_file  # noqa: F401
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 """The project root (holds ``components/``, ``assets/``); used for code versions."""
 
 MANIFEST_NAME = "manifest.json"
-_HASH_CHUNK_BYTES = 1 << 20
 
 
 # --------------------------------------------------------------------------- hashing
-
-
-def sha256_bytes(data: bytes) -> str:
-    """Hex sha256 of ``data``."""
-    return hashlib.sha256(data).hexdigest()
-
-
-def sha256_file(path: Path) -> str:
-    """Hex sha256 of a file's bytes, read in chunks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(_HASH_CHUNK_BYTES), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def canonical_json(obj: Any) -> str:
@@ -83,31 +69,6 @@ def code_version(*relative_dirs: str, root: Path = REPO_ROOT) -> str:
 
 
 # --------------------------------------------------------------------------- atomic writes
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` via a temp file in the same folder + ``os.replace``.
-
-    A crash (even ``kill -9``) leaves either the old file or the new one, never half of one.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def atomic_write_text(path: Path, text: str) -> Path:
-    """Atomically write UTF-8 text."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def atomic_write_json(path: Path, obj: Any) -> Path:

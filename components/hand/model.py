@@ -23,7 +23,8 @@ from components.hand.geometry import HandCollision, Primitives
 from components.hand.kinematics import HandKinematics, transform_points
 from components.hand.mjcf import WRIST_BODIES, HandSpec, load_hand_spec
 from components.hand.regions import DEFAULT_ASSETS_DIR, load_contact_candidates, load_keypoints
-from components.hand.urdf import build_urdf, pybullet_indices, write_text_atomic
+from components.fileio import atomic_write_text
+from components.hand.urdf import build_urdf, pybullet_indices
 
 #: File name used by :meth:`HandModel.export_urdf` when it is given a folder.
 URDF_FILE_NAME = "shadow_hand.urdf"
@@ -167,7 +168,7 @@ class HandModel:
         path = Path(path)
         if path.is_dir():
             path = path / URDF_FILE_NAME
-        return write_text_atomic(path, self.urdf_text())
+        return atomic_write_text(path, self.urdf_text())
 
     def pybullet_joint_indices(self, body_id: int, client_id: int = 0) -> list:
         """PyBullet joint index of each of the 22 ``joint_names`` for a hand loaded from the URDF."""

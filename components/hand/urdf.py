@@ -27,10 +27,7 @@ PyBullet numbers a link like the joint above it: use :func:`pybullet_indices` to
 indices instead of assuming an order.
 """
 
-import os
-import tempfile
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -116,20 +113,6 @@ def build_urdf(spec: HandSpec, link_names: list, geoms: list, robot_name: str, v
             ET.SubElement(joint, "dynamics", damping=_num(spec_joint.damping), friction=_num(spec_joint.frictionloss))
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
-
-
-def write_text_atomic(path: Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def pybullet_indices(body_id: int, client_id: int) -> tuple:

@@ -11,18 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from components.fileio import atomic_write_bytes, sha256_bytes  # noqa: E402,F401  (re-exported)
+
 log = logging.getLogger(__name__)
-
-
-def sha256_bytes(data: bytes) -> str:
-    """Hex sha256 of ``data``."""
-    return hashlib.sha256(data).hexdigest()
 
 
 def _arrays_digest(arrays: dict[str, np.ndarray]) -> str:
@@ -37,16 +32,8 @@ def _arrays_digest(arrays: dict[str, np.ndarray]) -> str:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temp file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    """Write ``data`` to ``path`` atomically (see :mod:`components.fileio`)."""
+    atomic_write_bytes(path, data)
 
 
 def save_arrays(path: Path, key: str, arrays: dict[str, np.ndarray]) -> None:
