@@ -37,7 +37,7 @@ class RunConfig(Section):
     runner: Literal["threads", "processes", "ray"] = Field(
         "threads", description="Prefect task runner used for fan-out (shards, specialists, evaluation).")
     max_workers: int = Field(2, ge=1, le=512, description="Parallel workers of the task runner.")
-    torch_threads: int = Field(0, ge=0, le=512, description="torch.set_num_threads per worker; 0 = torch default.")
+    torch_threads: int = Field(0, ge=0, le=512, description="torch.set_num_threads for the run (0 = torch default); 1 when workers share few cores.")
     seed: int = Field(0, ge=0, description="Base random seed; every unit derives its own seed from it.")
     ray_address: str | None = Field(None, description="Ray cluster address for runner=ray (None = start a local Ray).")
 

@@ -73,8 +73,22 @@ def stage_output(cfg: PipelineConfig, name: str) -> Manifest | None:
     return valid_manifest(specs[-1].folder) if specs[-1].unit in ("merge", "stage") else None
 
 
+def apply_torch_threads(threads: int) -> None:
+    """``torch.set_num_threads`` for this process (0 = leave torch's default).
+
+    Measured here (2 cores): when another busy thread or process shares the cores, torch's
+    2-thread kernels stall on their barrier — FK of 1024 poses takes ~320 ms with 2 threads
+    against ~30 ms with 1 (benchmarks/results/). With 2 parallel workers, use 1 thread each.
+    """
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
 def run_pipeline(cfg: PipelineConfig, modules: Sequence[ModuleType], command: str = "run") -> RunContext:
     """Run stages in order under one MLflow parent run; re-running resumes from the cache."""
+    apply_torch_threads(cfg.run.torch_threads)
     validate_inputs(cfg.objects, cfg.hand, cfg.run.workdir)
     tracker = make_tracker(cfg)
     parent = tracker.start_run(f"{command}:{cfg.profile}", tags={"profile": cfg.profile, "command": command})
