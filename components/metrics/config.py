@@ -1,0 +1,40 @@
+"""Config section of the grasp metrics (:class:`MetricsConfig`, DESIGN §6)."""
+
+from pydantic import Field
+
+from components.config_base import Section
+
+
+class MetricsConfig(Section):
+    """How Q1, PN and Div are measured (definitions in the docstrings of q1.py, penetration.py, diversity.py)."""
+
+    # ------------------------------------------------------------------ Q1
+    contact_distance_m: float = Field(
+        0.005, gt=0.0,
+        description="Q1: a hand surface sample is a contact of an object when it is within this distance of the object or inside it (DESIGN §6: 5 mm).")
+    friction_coefficient: float = Field(
+        0.5, gt=0.0,
+        description="Q1: Coulomb friction coefficient of the linearised friction cones. The paper does not state it; 0.5 is "
+        "the usual analysis value (Dex-Net, GraspIt!), below the simulated 0.8 so that Q1 is conservative.")
+    friction_cone_edges: int = Field(8, ge=3, description="Q1: edges of the polyhedral approximation of each friction cone.")
+    q1_hand_point_spacing_m: float = Field(
+        0.004, gt=0.0, description="Q1: spacing of the samples on the hand's collision geometry that are tested as contacts.")
+    q1_max_contacts: int = Field(
+        32, ge=1,
+        description="Q1: at most this many contacts per object (farthest-point subset of the samples in contact), which bounds "
+        "the 6-D convex hull to max_contacts x edges wrenches; neighbouring samples add nearly identical wrenches.")
+    q1_rank_tolerance: float = Field(
+        1e-9, gt=0.0,
+        description="Q1: the wrenches are rank-deficient (Q1 = 0) when their smallest singular value is below this fraction of the largest.")
+
+    # ------------------------------------------------------------------ PN
+    pn_object_points: int = Field(
+        4096, ge=16,
+        description="PN: surface samples per object tested against the hand's exact signed distance and the other objects "
+        "(4096 on a 5 cm sphere: ~1.4 mm apart, depth error < 0.05 mm against a finger).")
+    pn_hand_point_spacing_m: float = Field(
+        0.003, gt=0.0, description="PN: spacing of the samples on the hand's collision geometry tested against the object SDFs.")
+
+    # ------------------------------------------------------------------ shared
+    surface_seed: int = Field(0, ge=0, description="Seed of the object surface samples.")
+    batch_chunk: int = Field(64, ge=1, description="Grasps evaluated together (bounds memory of the dense point tests).")

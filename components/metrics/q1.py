@@ -1,0 +1,138 @@
+"""Q1, the Ferrari-Canny grasp quality (paper §"Pre-Grasp Proposals"; DESIGN §6).
+
+Definition used here, for one object O with centre of mass c and radius r (``ObjectModel.radius``):
+
+* **Contacts**: the samples of the hand's *collision geometry* (capsules, boxes, forearm cylinder;
+  :class:`components.synthesis.HandSurface`, spacing ``q1_hand_point_spacing_m``) whose signed distance to O
+  is below ``contact_distance_m`` (5 mm; samples inside O count).  Each is projected onto the surface,
+  x = h - d_O(h) n(h), with n the outward unit normal (SDF gradient).  At most ``q1_max_contacts``
+  (farthest-point subset, starting from the closest sample).  The hand's contact candidates are *not*
+  used: any part of the hand that touches the object can push it.
+* **Primitive wrenches**: a friction cone of coefficient mu linearised by E edges (unit normal force),
+  f_k = -n + mu (cos(2 pi k / E) t1 + sin(2 pi k / E) t2), and
+  w_k = [f_k ; (x - c) x f_k / r]  (torque normalised by the object's radius).
+* **Q1** = radius of the largest ball centred at the origin inside the convex hull W of all primitive
+  wrenches = min over the facets of W of their distance to the origin (scipy / qhull, 6-D).  Q1 = 0 when
+  there are no contacts, when the wrenches are rank-deficient (they cannot span the 6-D wrench space,
+  e.g. one or two point contacts) or when the origin is not strictly inside W (no force closure).
+* **Multi-object Q1** = min over the scene's objects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import ConvexHull, QhullError
+from torch import Tensor
+
+from components.hand import HandModel
+from components.metrics.config import MetricsConfig
+from components.synthesis.hand_surface import HandSurface
+from components.synthesis.scene_objects import SceneObjects
+
+#: Components of a wrench: 3 of force, 3 of (normalised) torque.
+WRENCH_DIM = 6
+#: qhull attempts: scipy's default options, then joggled input ('QJ': coordinates perturbed by ~1e-11 of
+#: their range), which avoids the topology errors that nearly coplanar cone edges raise in 6-D.
+QHULL_OPTIONS = (None, "QJ")
+
+
+def tangent_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (t1, t2) with (t1, t2, n) orthonormal, per unit normal.   (C, 3) -> 2 x (C, 3)."""
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    t1 = np.cross(normals, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(normals, t1)
+
+
+def primitive_wrenches(points: np.ndarray, normals: np.ndarray, centre: np.ndarray, radius: float,
+                       mu: float, n_edges: int) -> np.ndarray:
+    """Edge wrenches of linearised friction cones (module docstring):
+    f_k = -n + mu (cos a_k t1 + sin a_k t2),  w_k = [f_k ; (x - c) x f_k / r].
+    points, outward unit normals (C, 3) -> (C * E, 6)."""
+    t1, t2 = tangent_basis(normals)
+    angles = 2.0 * np.pi * np.arange(n_edges) / n_edges  # (E,)
+    forces = (-normals[:, None, :] + mu * (np.cos(angles)[None, :, None] * t1[:, None, :]
+                                           + np.sin(angles)[None, :, None] * t2[:, None, :]))  # (C, E, 3)
+    torques = np.cross((points - centre)[:, None, :], forces) / radius  # (C, E, 3)
+    return np.concatenate([forces, torques], axis=-1).reshape(-1, WRENCH_DIM)
+
+
+def q1_from_wrenches(wrenches: np.ndarray, rank_tolerance: float) -> float:
+    """Q1 = min over facets of hull(W) of the facet's distance to the origin, 0 unless the origin is strictly
+    inside a full-dimensional hull (module docstring).   wrenches (M, 6) -> float."""
+    if len(wrenches) <= WRENCH_DIM:
+        return 0.0
+    singular = np.linalg.svd(wrenches, compute_uv=False)
+    if singular[-1] <= rank_tolerance * singular[0]:
+        return 0.0
+    hull = None
+    for options in QHULL_OPTIONS:
+        try:
+            hull = ConvexHull(wrenches, qhull_options=options)
+            break
+        except QhullError:
+            continue
+    if hull is None:
+        return 0.0
+    # qhull facets: unit normal . x + offset <= 0 inside; the origin's distance to a facet is -offset
+    return max(0.0, float(np.min(-hull.equations[:, -1])))
+
+
+def q1_single_object(points: np.ndarray, normals: np.ndarray, centre: np.ndarray, radius: float,
+                     cfg: MetricsConfig) -> float:
+    """Q1 of one object from its contact points and outward unit normals (C, 3) (module docstring)."""
+    if len(points) == 0:
+        return 0.0
+    wrenches = primitive_wrenches(points, normals, centre, radius, cfg.friction_coefficient, cfg.friction_cone_edges)
+    return q1_from_wrenches(wrenches, cfg.q1_rank_tolerance)
+
+
+def farthest_point_indices(points: np.ndarray, n: int, start: int) -> np.ndarray:
+    """Indices of a greedy farthest-point subset of ``points`` (P, 3) of size min(n, P), from ``start``."""
+    n = min(n, len(points))
+    chosen = np.empty(n, dtype=np.int64)
+    chosen[0] = start
+    dist = np.linalg.norm(points - points[start], axis=1)  # (P,) distance to the chosen set
+    for i in range(1, n):
+        chosen[i] = int(dist.argmax())
+        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
+    return chosen
+
+
+def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                    cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The contacts of one grasp on one object: hand samples with d < ``contact_distance_m`` projected onto
+    the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample).
+    distances (M,), points, normals (M, 3) -> (contact points (C, 3), normals (C, 3))."""
+    touching = np.flatnonzero(distances < cfg.contact_distance_m)
+    if len(touching) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    surface = points[touching] - distances[touching, None] * normals[touching]
+    normal = normals[touching]
+    if len(touching) > cfg.q1_max_contacts:
+        chosen = farthest_point_indices(surface, cfg.q1_max_contacts, int(np.argmin(np.abs(distances[touching]))))
+        surface, normal = surface[chosen], normal[chosen]
+    return surface, normal
+
+
+def q1_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: Tensor, cfg: MetricsConfig,
+              hand_surface: HandSurface | None = None) -> tuple[Tensor, Tensor]:
+    """Q1 of every grasp H = (p (B, 3), R (B, 3, 3), q (B, 22)) in the scene of ``objects``.
+    -> (multi-object Q1 = min over objects (B,), per object (B, n_obj)), float64 on the CPU."""
+    samples = hand_surface if hand_surface is not None else HandSurface(hand, cfg.q1_hand_point_spacing_m)
+    centres = objects.positions.double().cpu().numpy()
+    radii = objects.radii.double().cpu().numpy()
+    per_object = np.zeros((p.shape[0], objects.n_objects))
+    with torch.no_grad():
+        for start in range(0, p.shape[0], cfg.batch_chunk):
+            rows = slice(start, start + cfg.batch_chunk)
+            points = samples.world(hand, p[rows], R[rows], q[rows])  # (b, M, 3)
+            dist, normal = objects.sdf_and_normal(points)  # (b, M, n_obj), (b, M, n_obj, 3)
+            points, dist, normal = (t.double().cpu().numpy() for t in (points, dist, normal))
+            for i in range(points.shape[0]):
+                for j in range(objects.n_objects):
+                    contacts, normals = object_contacts(dist[i, :, j], points[i], normal[i, :, j], cfg)
+                    per_object[start + i, j] = q1_single_object(contacts, normals, centres[j], radii[j], cfg)
+    per_object_t = torch.as_tensor(per_object)
+    return per_object_t.amin(-1), per_object_t

@@ -1,0 +1,144 @@
+"""Config section of multi-object grasp synthesis (:class:`SynthesisConfig`, DESIGN §5.1).
+
+Defaults are the official MultiGrasp values where the release has them (energy weights 1 / 10 / 10 / 10,
+batch 1024, 6500 MALA steps with step 0.01 * 0.95^floor(t/100) and temperature 8 * 0.95^floor(t/50),
+contact switch probability 0.25, 1500 Adam refinement steps, filter FC < 0.25, contact distance < 5 mm,
+penetration < 5 mm, prior < 0.1).  Every other number is a documented choice of this project.
+"""
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from components.config_base import Section
+
+
+class SynthesisConfig(Section):
+    """Multi-object DFC synthesis: energy weights, MALA schedule, Adam refinement, filter, initialisation."""
+
+    # ------------------------------------------------------------------ batch / contacts
+    batch_size: int = Field(1024, ge=1, description="Candidate grasps optimised in parallel for one scene (official: 1024).")
+    contacts_per_object: int = Field(3, ge=1, description="Hand contact points assigned to each object (official: 3).")
+
+    # ------------------------------------------------------------------ energy weights (paper Eq. multi-dfc-energy)
+    w_fc: float = Field(1.0, ge=0.0, description="Weight of the force-closure error E_fc (official: 1).")
+    w_dist: float = Field(10.0, ge=0.0, description="Weight of the contact-distance energy E_dist during MALA (official: 10).")
+    w_pen: float = Field(10.0, ge=0.0, description="Weight of the penetration energy E_pen (official: 10).")
+    w_prior: float = Field(10.0, ge=0.0, description="Weight of the joint-limit prior E_prior (official: 10).")
+    w_pen_object_points: float = Field(
+        1.0, ge=0.0, description="Sub-weight in E_pen of object surface points inside the hand (sum of depths, m).")
+    w_pen_hand_points: float = Field(
+        1.0, ge=0.0, description="Sub-weight in E_pen of hand surface points inside the objects (sum of depths, m).")
+    w_pen_self: float = Field(1.0, ge=0.0, description="Sub-weight in E_pen of hand self-penetration (sum over geom pairs, m).")
+    w_pen_table: float = Field(
+        10.0, ge=0.0,
+        description="Sub-weight in E_pen of the hand below the table (sum over the hand's geoms of the depth of their lowest "
+        "point, m). 10: the official release sums the depth of every hand surface vertex below the table, which weighs a "
+        "finger below the table about ten times more than its single lowest point does here.")
+    fc_margin: float = Field(
+        0.2, ge=0.0,
+        description="E_fc per object = relu(|G n|^2 - fc_margin): force-closure errors below this are not penalised (official: 0.2).")
+    fc_normalize_by_radius: bool = Field(
+        True,
+        description="Lever arms x in G = [I; [x]x] are measured from the object's centre and divided by its radius, so "
+        "the torque rows are scale-free like Q1's (the official code used raw world coordinates in metres, where the "
+        "torque rows are ~100x smaller than the force rows).")
+    couple_distal_joints: bool = Field(
+        True,
+        description="Evaluate the energy at q with the J0 of FF/MF/RF/LF recomputed from J1 by the Shadow Hand's "
+        "tendon coupling, so every synthesised pose is reachable by the 18 actuators.")
+    object_surface_points: int = Field(
+        256, ge=1, description="Surface samples per object tested against the hand's signed distance in E_pen (official: 256).")
+    hand_point_spacing_m: float = Field(
+        0.01, gt=0.0,
+        description="Spacing (m) of the samples on the hand's collision geometry tested against the object SDFs in E_pen.")
+
+    # ------------------------------------------------------------------ MALA (annealed Langevin with Metropolis test)
+    mala_steps: int = Field(6500, ge=0, description="Annealed MALA steps with contact switching (official: 6500).")
+    step_size: float = Field(0.01, gt=0.0, description="Initial step size s_0 of the preconditioned gradient step (official: 0.01).")
+    step_size_decay: float = Field(0.95, gt=0.0, le=1.0, description="s_t = s_0 * decay^floor(t / step_size_period) (official: 0.95).")
+    step_size_period: int = Field(100, ge=1, description="Steps between step-size decays at the reference schedule (official: 100).")
+    temperature: float = Field(8.0, gt=0.0, description="Initial Metropolis temperature T_0 (official: 8).")
+    temperature_decay: float = Field(0.95, gt=0.0, le=1.0, description="T_t = T_0 * decay^floor(t / temperature_period) (official: 0.95).")
+    temperature_period: int = Field(50, ge=1, description="Steps between temperature decays at the reference schedule (official: 50).")
+    schedule_reference_steps: int = Field(
+        6500, ge=1,
+        description="MALA length the periods above are written for. With compress_schedule, both periods are scaled by "
+        "mala_steps / schedule_reference_steps so shorter runs anneal over the same range.")
+    compress_schedule: bool = Field(
+        True, description="Scale the decay periods to the run length (see schedule_reference_steps); no effect at 6500 steps.")
+    contact_switch_probability: float = Field(
+        0.25, ge=0.0, le=1.0,
+        description="Probability of a contact switch (official: 0.25); what it applies to is set by contact_switch_mode.")
+    contact_switch_mode: Literal["per_step", "per_contact"] = Field(
+        "per_step",
+        description="'per_step' (official MultiGrasp): with the probability, one random contact of every object of the row "
+        "moves to a new candidate; 'per_contact' (DexGraspNet): every contact moves independently with the probability. "
+        "Either way the new candidate is one no contact of the row uses.")
+    contact_switch_local_probability: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="Fraction of switches that stay within the contact's hand region (slide along the link); the others "
+        "jump to any region. The official release instead optimises continuous weights of each contact over its region's "
+        "patch; this discrete slide plays that role for point candidates.")
+    rmsprop_decay: float = Field(
+        0.98, ge=0.0, lt=1.0,
+        description="EMA decay of the squared gradient (per parameter, averaged over the batch) that preconditions the step, as in DexGraspNet.")
+    rmsprop_per_row: bool = Field(
+        False,
+        description="Keep the squared-gradient EMA per candidate (B, D) instead of averaged over the batch (D,) as in "
+        "DexGraspNet: every candidate then moves at the step size whatever the scale of its own gradient.")
+    rmsprop_epsilon: float = Field(1e-6, gt=0.0, description="Added to sqrt(EMA of grad^2) before dividing the gradient.")
+    langevin_noise: float = Field(
+        0.1, ge=0.0,
+        description="Standard deviation of the Gaussian noise of a proposal, as a fraction of the current step size.")
+    step_scale_translation: float = Field(1.0, gt=0.0, description="Step multiplier of the palm position p (m).")
+    step_scale_rotation: float = Field(1.0, gt=0.0, description="Step multiplier of the 6-D rotation parameters.")
+    step_scale_joints: float = Field(1.0, gt=0.0, description="Step multiplier of the joint angles (rad).")
+
+    # ------------------------------------------------------------------ Adam refinement
+    refine_steps: int = Field(1500, ge=0, description="Adam refinement steps after MALA, contacts fixed (official: 1500).")
+    refine_lr: float = Field(
+        1e-3, gt=0.0,
+        description="Adam learning rate of the refinement (Adam moves every parameter by about lr per step: 1 mm, 1 mrad). "
+        "The official 1e-2 made the energy oscillate here (1 cm steps of the palm near contact).")
+    refine_w_dist: float = Field(20.0, ge=0.0, description="Weight of E_dist during refinement (official raises it from 10 to 20).")
+    keep_best: bool = Field(True, description="Return, per candidate, the lowest-energy pose seen during refinement.")
+
+    # ------------------------------------------------------------------ filter
+    filter_fc: float = Field(0.25, ge=0.0, description="Accept if the largest per-object E_fc is below this (official: 0.25).")
+    filter_contact_distance_m: float = Field(
+        0.005, gt=0.0, description="Accept if every contact point is within this distance of its object's surface (official: 5 mm).")
+    filter_penetration_m: float = Field(
+        0.005, gt=0.0,
+        description="Accept if the deepest sampled penetration (hand-object both ways, hand-table, self) is below this (official: 5 mm).")
+    filter_prior: float = Field(0.1, ge=0.0, description="Accept if E_prior (rad of joint-limit violation) is below this (official: 0.1).")
+
+    # ------------------------------------------------------------------ initialisation
+    init_max_polar_deg: float = Field(
+        60.0, ge=0.0, le=90.0,
+        description="Approach directions are uniform on the spherical cap above the objects within this angle of +z.")
+    init_distance_min_m: float = Field(
+        0.01, ge=0.0, description="Palm centre starts this far (at least) outside the objects' bounding sphere.")
+    init_distance_max_m: float = Field(0.04, ge=0.0, description="...and at most this far.")
+    init_jitter_deg: float = Field(
+        10.0, ge=0.0, description="Standard deviation of a random rotation applied to the palm after aiming it at the objects.")
+    init_joint_fraction: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="Initial actuated joint angles: open pose + fraction * (uniform sample in the limits - open pose).")
+    seed_surface_points: int = Field(0, ge=0, description="Seed of the object and hand surface samples (fixed samples, not the optimisation seed).")
+
+    # ------------------------------------------------------------------ logging
+    progress_every: int = Field(50, ge=1, description="Steps between calls of the progress callback (MALA and refinement).")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "SynthesisConfig":
+        if self.init_distance_max_m < self.init_distance_min_m:
+            raise ValueError("init_distance_max_m must be >= init_distance_min_m")
+        return self
+
+    def schedule_periods(self) -> tuple[int, int]:
+        """(step-size period, temperature period) of this run (scaled when ``compress_schedule``)."""
+        if not self.compress_schedule:
+            return self.step_size_period, self.temperature_period
+        scale = self.mala_steps / self.schedule_reference_steps
+        return max(1, round(self.step_size_period * scale)), max(1, round(self.temperature_period * scale))

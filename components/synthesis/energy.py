@@ -1,0 +1,266 @@
+"""The multi-object DFC grasp energy (paper §"Preliminaries", Eq. multi-dfc-energy; DESIGN §5.1).
+
+    E(H, O) = w_fc sum_j E_fc(x_j, O_j) + w_dist sum_j E_dist(x_j, O_j) + w_pen E_pen(H, O) + w_prior E_prior(H)
+
+H = (p, R, q) is the hand pose, O_j the posed objects of the scene and x_j the ``contacts_per_object``
+hand contact points assigned to object j (indices into ``HandModel.contact_candidates``; all distinct).
+E_pen = w_po E_pen^obj-pts + w_ph E_pen^hand-pts + w_self E_spen + w_table E_table (the paper's
+lambda_p E_p + lambda_sp E_sp; the table term is what makes the problem tabletop) and E_prior is the
+paper's E_q.  The official MultiGrasp release uses the same four weights 1 / 10 / 10 / 10.
+
+One equation per function below; :func:`energy` assembles them and returns the total with every named
+term, per row (B,) and, where it is a sum over objects, per object (B, n_obj).  It also returns
+detached *diagnostics* in metres (largest contact distance, deepest sampled penetration) for the filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+from components.errors import MultigraspError
+from components.hand import HandModel
+from components.hand.geometry import Primitives
+from components.hand.model import palm_from_world, world_from_palm
+from components.synthesis.config import SynthesisConfig
+from components.synthesis.hand_surface import HandSurface
+from components.synthesis.pose import unpack
+from components.synthesis.scene_objects import SceneObjects
+
+#: Hand geoms whose surface samples are *not* tested against the object SDFs in E_pen: the forearm
+#: cylinder (r = 6.9 cm) and the wrist capsule are too large to slip between object surface samples,
+#: and object points inside them are already caught by the exact hand SDF (E_pen^obj-pts).
+LARGE_HAND_GEOMS = ("C_forearm", "C_wrist")
+
+
+# ============================================================================ the energy's terms
+def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length: Tensor, margin: float) -> Tensor:
+    """Force-closure error of one object (paper Eq. multi-dfc-energy, E_FC; DFC, Liu et al. 2021, Eq. 8b):
+
+        E_fc = relu(|G n|^2 - margin),   G = [ I_3  ...  I_3 ; [x_1]x ... [x_C]x ]  (6 x 3C),
+        |G n|^2 = |sum_i n_i|^2 + |sum_i x_i x n_i|^2,
+
+    with n_i the object's outward unit normal at contact i and x_i = (c_i - centre) / length its lever
+    arm (length = the object's radius, or 1 m for the official raw coordinates).  Zero when the unit
+    contact forces along the normals balance in force and torque (up to ``margin``).
+    points, normals (B, C, 3), centre (3,), length () -> (B,).
+    """
+    lever = (points - centre) / length  # (B, C, 3)
+    force = normals.sum(dim=1)  # (B, 3)
+    torque = torch.cross(lever, normals, dim=-1).sum(dim=1)  # (B, 3)
+    return torch.relu((force * force).sum(-1) + (torque * torque).sum(-1) - margin)
+
+
+def contact_distance_energy(signed_distance: Tensor) -> Tensor:
+    """Contact distance of one object (DESIGN §5.1, E_dist):  E_dist = sum_i |d_O(c_i)|  (m), the distance
+    of each assigned hand contact point to the object's surface.   (B, C) -> (B,)."""
+    return signed_distance.abs().sum(-1)
+
+
+def object_points_in_hand(hand_signed_distance: Tensor) -> Tensor:
+    """Object-into-hand penetration (paper E_p, first half):  E = sum_k relu(-d_H(o_k))  (m), over the
+    object surface samples o_k, with d_H the hand's signed distance (negative inside a primitive).
+    (..., P) -> (...)."""
+    return torch.relu(-hand_signed_distance).sum(-1)
+
+
+def hand_points_in_objects(object_signed_distance: Tensor) -> Tensor:
+    """Hand-into-object penetration (paper E_p, second half):  E_j = sum_m relu(-d_{O_j}(h_m))  (m), over
+    the hand surface samples h_m.   (B, M, n_obj) -> (B, n_obj)."""
+    return torch.relu(-object_signed_distance).sum(1)
+
+
+def table_penetration(lowest_heights: Tensor, table_height: float) -> Tensor:
+    """Hand below the table (DESIGN §5.1):  E_table = sum_g relu(z_table - z_g)  (m), z_g the height of the
+    lowest point of hand primitive g (exact support function).   (B, G) -> (B,)."""
+    return torch.relu(table_height - lowest_heights).sum(-1)
+
+
+def self_penetration_energy(pair_signed_distances: Tensor) -> Tensor:
+    """Self-penetration (paper E_sp):  E_spen = sum over checked geom pairs of relu(-d_pair)  (m)
+    (pairs: ``HandModel.self_penetration``).   (B, P) -> (B,)."""
+    return torch.relu(-pair_signed_distances).sum(-1)
+
+
+def joint_limit_energy(hand: HandModel, q: Tensor) -> Tensor:
+    """Joint-limit prior (paper E_q):  E_prior = sum_j relu(q_j - upper_j) + relu(lower_j - q_j)  (rad).
+    (B, 22) -> (B,)."""
+    return hand.joint_limit_violation(q)
+
+
+# ============================================================================ fixed inputs of one scene
+@dataclass
+class GraspProblem:
+    """What the energy of one scene needs besides the pose: the hand, the posed objects, fixed samples."""
+
+    hand: HandModel
+    objects: SceneObjects
+    cfg: SynthesisConfig
+    hand_surface: HandSurface  # samples tested against the object SDFs (large geoms excluded)
+    object_points: Tensor  # (n_obj, P, 3) world surface samples tested against the hand SDF
+    lever_lengths: Tensor  # (n_obj,) torque normalisation of E_fc
+
+    @classmethod
+    def build(cls, hand: HandModel, objects: SceneObjects, cfg: SynthesisConfig) -> "GraspProblem":
+        n_contacts = objects.n_objects * cfg.contacts_per_object
+        n_candidates = len(hand.contact_region_of)
+        if n_contacts >= n_candidates:
+            raise MultigraspError(
+                f"{objects.n_objects} objects x synthesis.contacts_per_object={cfg.contacts_per_object} contacts need more "
+                f"than the hand's {n_candidates} contact candidates; lower contacts_per_object or raise hand.contact_points_per_region")
+        lengths = objects.radii if cfg.fc_normalize_by_radius else torch.ones_like(objects.radii)
+        return cls(hand=hand, objects=objects, cfg=cfg,
+                   hand_surface=HandSurface(hand, cfg.hand_point_spacing_m, exclude=LARGE_HAND_GEOMS),
+                   object_points=objects.surface_points(cfg.object_surface_points, cfg.seed_surface_points),
+                   lever_lengths=lengths)
+
+    @property
+    def n_candidates(self) -> int:
+        return len(self.hand.contact_region_of)
+
+    def effective_joints(self, q: Tensor) -> Tensor:
+        """The joint angles the energy sees: with ``couple_distal_joints`` the J0 of FF/MF/RF/LF follow J1."""
+        return self.hand.expand_actuated(self.hand.actuated(q)) if self.cfg.couple_distal_joints else q
+
+
+def posed_in_world(prims: Primitives, p: Tensor, R: Tensor) -> Primitives:
+    """Palm-frame primitives moved to the world by (p, R):  x_w = R x + p,  rot_w = R rot."""
+    def move(x: Tensor) -> Tensor:  # (B, G, 3)
+        return x @ R.transpose(1, 2) + p.unsqueeze(1)
+
+    return Primitives(capsule_a=move(prims.capsule_a), capsule_b=move(prims.capsule_b),
+                      prism_centre=move(prims.prism_centre), prism_rot=R.unsqueeze(1) @ prims.prism_rot)
+
+
+def gather_contacts(candidates: Tensor, contacts: Tensor) -> Tensor:
+    """Contact points of every object.   candidates (B, K, 3), contacts (B, n_obj, C) -> (B, n_obj, C, 3)."""
+    batch, n_obj, n_c = contacts.shape
+    flat = contacts.reshape(batch, n_obj * n_c, 1).expand(-1, -1, 3)
+    return candidates.gather(1, flat).reshape(batch, n_obj, n_c, 3)
+
+
+def object_points_hand_distances(hand: HandModel, points: Tensor, p: Tensor, R: Tensor, prims: Primitives) -> Tensor:
+    """Hand signed distance d_H of world points (B, N, 3) -> (B, N), differentiable where it matters.
+
+    Every point's distance is found without autograd; only the points inside the hand (d < 0, padded to
+    the row with the most of them) are re-evaluated with autograd.  The points outside keep their
+    detached value: every penetration term is relu(-d), whose value and gradient vanish there, so the
+    energy and its gradient are those of the dense evaluation at a fraction of the backward cost.
+    With ``HandConfig.compile_distance_kernels`` the dense evaluation is used (compiled kernels are
+    specialised to one shape; the inside points change shape every step).
+    """
+    palm = palm_from_world(points, p, R)  # (B, N, 3)
+    if hand.cfg.compile_distance_kernels:  # compiled kernels are built per shape: keep the one dense shape
+        return hand.collision.signed_distance(palm, prims)
+    with torch.no_grad():
+        dist = hand.collision.signed_distance(palm, prims)  # (B, N)
+    inside = dist < 0.0
+    counts = inside.sum(1)  # (B,)
+    n_max = int(counts.max()) if counts.numel() else 0
+    if n_max == 0 or not torch.is_grad_enabled():
+        return dist
+    order = torch.argsort((~inside).to(torch.int8), dim=1, stable=True)[:, :n_max]  # (B, n_max) inside first
+    valid = torch.arange(n_max, device=dist.device) < counts.unsqueeze(1)  # (B, n_max)
+    chosen = palm.gather(1, order.unsqueeze(-1).expand(-1, -1, 3))  # (B, n_max, 3)
+    redone = hand.collision.signed_distance(chosen, prims)  # (B, n_max) with autograd
+    redone = torch.where(valid, redone, dist.gather(1, order))  # padding keeps the detached value
+    return dist.scatter(1, order, redone)
+
+
+def hand_points_object_distances(objects: SceneObjects, points: Tensor) -> Tensor:
+    """Object signed distances of hand points (B, M, 3) -> (B, M, n_obj), differentiable where it matters:
+    as :func:`object_points_hand_distances`, only the points inside some object are re-evaluated with
+    autograd."""
+    with torch.no_grad():
+        dist = objects.sdf(points)  # (B, M, n_obj)
+    if not torch.is_grad_enabled():
+        return dist
+    flat = dist.reshape(-1, dist.shape[-1])  # (B M, n_obj)
+    index = (flat < 0.0).any(-1).nonzero().squeeze(-1)  # (K,)
+    if index.numel() == 0:
+        return dist
+    redone = objects.sdf(points.reshape(1, -1, 3)[:, index]).squeeze(0)  # (K, n_obj) with autograd
+    return flat.index_copy(0, index, redone).reshape(dist.shape)
+
+
+# ============================================================================ the total
+def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None) -> tuple[Tensor, dict]:
+    """E(H, O) of the module docstring for flat poses x (B, 31) (:mod:`components.synthesis.pose`) and
+    contacts (B, n_obj, C).  ``w_dist`` overrides ``cfg.w_dist`` (the refinement raises it).
+
+    Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior`` (unweighted, (B,));
+    ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
+    ``pen_self``, ``pen_table`` ((B,)); diagnostics (detached, m): ``contact_distance_max``,
+    ``penetration_depth_objects``, ``penetration_depth_table``, ``penetration_depth_self``,
+    ``penetration_depth_max``.
+    """
+    cfg, hand, objects = problem.cfg, problem.hand, problem.objects
+    w_dist = cfg.w_dist if w_dist is None else w_dist
+    p, R, q_param = unpack(x)
+    q = problem.effective_joints(q_param)  # (B, 22)
+    batch = x.shape[0]
+
+    frames = hand.forward_kinematics(q)  # (B, L, 4, 4) palm frame
+    prims = hand.collision.pose(frames)  # palm frame
+
+    # contacts: E_fc and E_dist per object
+    contact_points = gather_contacts(hand.contact_candidates(p, R, q), contacts)  # (B, n_obj, C, 3)
+    fc, dist, contact_dist = [], [], []
+    for j in range(objects.n_objects):
+        d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
+        fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
+                                      cfg.fc_margin))
+        dist.append(contact_distance_energy(d))
+        contact_dist.append(d.detach().abs())
+    fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
+
+    # penetration (only points found inside are re-evaluated with autograd: object_points_hand_distances,
+    # hand_points_object_distances)
+    n_obj, n_pts = problem.object_points.shape[:2]
+    obj_pts = problem.object_points.reshape(1, n_obj * n_pts, 3).expand(batch, -1, -1)  # (B, n_obj P, 3)
+    d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims)  # (B, n_obj P)
+    pen_object_points = object_points_in_hand(d_hand.reshape(batch, n_obj, n_pts))  # (B, n_obj)
+    hand_pts = problem.hand_surface.from_frames(world_from_palm(p, R, frames))  # (B, M, 3)
+    d_obj = hand_points_object_distances(objects, hand_pts)  # (B, M, n_obj)
+    pen_hand_points = hand_points_in_objects(d_obj)  # (B, n_obj)
+    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
+    pen_self = self_penetration_energy(pairs)
+    lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
+    pen_table = table_penetration(lowest, objects.table_height)
+    pen = (cfg.w_pen_object_points * pen_object_points.sum(-1) + cfg.w_pen_hand_points * pen_hand_points.sum(-1)
+           + cfg.w_pen_self * pen_self + cfg.w_pen_table * pen_table)
+
+    prior = joint_limit_energy(hand, q)
+    fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
+    total = cfg.w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
+
+    with torch.no_grad():
+        depth_objects = torch.maximum(torch.relu(-d_hand.reshape(batch, n_obj, n_pts)).amax(-1),
+                                      torch.relu(-d_obj).amax(1))  # (B, n_obj)
+        depth_table = torch.relu(objects.table_height - lowest).amax(-1)
+        depth_self = torch.relu(-pairs).amax(-1) if pairs.shape[1] else torch.zeros_like(depth_table)
+        terms = {
+            "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior,
+            "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
+            "pen_object_points": pen_object_points, "pen_hand_points": pen_hand_points,
+            "pen_self": pen_self, "pen_table": pen_table,
+            "contact_distance_max": torch.cat(contact_dist, dim=-1).amax(-1),
+            "penetration_depth_objects": depth_objects, "penetration_depth_table": depth_table,
+            "penetration_depth_self": depth_self,
+            "penetration_depth_max": torch.maximum(torch.maximum(depth_objects.amax(-1), depth_table), depth_self),
+        }
+    return total, terms
+
+
+def energy_and_grad(problem: GraspProblem, x: Tensor, contacts: Tensor,
+                    w_dist: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
+    """Energy (B,), its gradient wrt x (B, D) and the detached terms.  Rows are independent, so the
+    gradient of the batch sum is every row's own gradient."""
+    with torch.enable_grad():
+        x = x.detach().requires_grad_(True)
+        total, terms = energy(problem, x, contacts, w_dist)
+        (grad,) = torch.autograd.grad(total.sum(), x)
+    return total.detach(), grad, {k: v.detach() for k, v in terms.items()}

@@ -1,0 +1,218 @@
+"""Optimisers of the grasp energy: annealed MALA with contact switching, then Adam refinement (DESIGN §5.1).
+
+:class:`Annealer` follows DexGraspNet's ``Annealing`` optimiser (``try_step`` / ``accept_step``) with the
+MultiGrasp schedule.  One step t, for every row b of the batch:
+
+1. proposal  x' = x - s_t * k * g / (sqrt(v) + eps) + s_t * k * sigma * xi,   xi ~ N(0, I),
+   with g = grad_x E(x, c) at the current state, v the EMA (decay ``rmsprop_decay``) of g^2 per parameter,
+   averaged over the batch as in DexGraspNet (or per row with ``rmsprop_per_row``) -- RMSProp
+   preconditioning --, k the per-group multiplier (translation / rotation / joints) and
+   sigma = ``langevin_noise``;
+2. contacts  c': with probability ``contact_switch_probability`` one random contact of every object
+   (``contact_switch_mode='per_step'``, the official MultiGrasp rule) or each contact independently
+   (``'per_contact'``, DexGraspNet's rule) moves to a uniformly drawn candidate used by no contact of the
+   row -- of its own hand region with probability ``contact_switch_local_probability`` (a slide along the
+   link, standing in for the official release's continuous contact weights within a region), else of
+   any region -- so all contacts of a row stay distinct;
+3. Metropolis test at temperature T_t:  accept with probability min(1, exp((E(x, c) - E(x', c')) / T_t));
+   a rejected row keeps its state, energy and gradient.
+
+Schedules:  s_t = s_0 * decay^floor(t / P_s),  T_t = T_0 * decay^floor(t / P_T)  (official s_0 = 0.01,
+T_0 = 8, decay 0.95, P_s = 100, P_T = 50; both periods scaled to the run length when
+``compress_schedule``).  Like the official code and DexGraspNet, the proposal is not corrected by the
+reverse-move density, so this is annealed Langevin with a Metropolis energy test rather than exact MALA.
+
+:func:`refine` then runs Adam on the same energy (E_dist weighted by ``refine_w_dist``) with the
+contacts fixed, keeping each row's lowest-energy pose.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+from components.synthesis.config import SynthesisConfig
+from components.synthesis.energy import GraspProblem, energy_and_grad
+from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION
+
+#: progress(step, total, info): called every ``progress_every`` steps with a dict of scalars
+#: (stage, energy_mean, accept_rate, step_size, temperature, elapsed_s, eta_s).
+ProgressFn = Callable[[int, int, dict], None]
+
+
+def step_size_at(t: int, cfg: SynthesisConfig) -> float:
+    """s_t = s_0 * decay^floor(t / P_s)  (module docstring)."""
+    period, _ = cfg.schedule_periods()
+    return cfg.step_size * cfg.step_size_decay ** (t // period)
+
+
+def temperature_at(t: int, cfg: SynthesisConfig) -> float:
+    """T_t = T_0 * decay^floor(t / P_T)  (module docstring)."""
+    _, period = cfg.schedule_periods()
+    return cfg.temperature * cfg.temperature_decay ** (t // period)
+
+
+def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator) -> Tensor:
+    """Stochastic contact switching (module docstring, step 2).
+
+    Which contacts switch: with ``contact_switch_mode='per_step'``, with probability p a row switches one
+    uniformly chosen contact of every object; with ``'per_contact'`` each contact switches independently
+    with probability p (p = ``contact_switch_probability``).  Where to: with probability
+    ``contact_switch_local_probability`` a candidate of the same hand region (the contact slides along
+    its link), otherwise any candidate; in both cases uniformly among the candidates no contact of the row
+    uses (itself included, so a switch always changes it).  A local switch in a region with no free
+    candidate falls back to any candidate.   contacts (B, n_obj, C), region_of (K,) -> (B, n_obj, C).
+    """
+    batch, n_obj, per_object = contacts.shape
+    n_candidates = region_of.shape[0]
+    flat = contacts.reshape(batch, -1).clone()  # (B, S)
+    n_slots = flat.shape[1]
+
+    def uniform(*shape: int) -> Tensor:
+        return torch.rand(*shape, generator=generator, device=generator.device).to(flat.device)
+
+    if cfg.contact_switch_mode == "per_contact":
+        switch = uniform(batch, n_slots) < cfg.contact_switch_probability
+    else:
+        row = uniform(batch, 1) < cfg.contact_switch_probability  # (B, 1)
+        which = torch.randint(per_object, (batch, n_obj), generator=generator, device=generator.device).to(flat.device)
+        switch = row & torch.nn.functional.one_hot(which, per_object).bool().reshape(batch, n_slots)
+    local = uniform(batch, n_slots) < cfg.contact_switch_local_probability  # (B, S)
+    for slot in range(n_slots):
+        rows = switch[:, slot].nonzero().squeeze(-1)  # (R,)
+        if rows.numel() == 0:
+            continue
+        used = torch.zeros(rows.numel(), n_candidates, dtype=torch.bool, device=flat.device)
+        used.scatter_(1, flat[rows], True)  # (R, K)
+        same_region = region_of.unsqueeze(0) == region_of[flat[rows, slot]].unsqueeze(1)  # (R, K)
+        local_ok = ~used & same_region
+        use_local = local[rows, slot] & local_ok.any(1)  # (R,)
+        allowed = torch.where(use_local.unsqueeze(1), local_ok, ~used)
+        keys = uniform(rows.numel(), n_candidates).masked_fill(~allowed, float("inf"))
+        flat[rows, slot] = keys.argmin(1)  # uniform among the allowed candidates
+    return flat.reshape(contacts.shape)
+
+
+@dataclass
+class AnnealerState:
+    """The chain of every row: pose x (B, D), contacts (B, n_obj, C), energy (B,), gradient (B, D), terms."""
+
+    x: Tensor
+    contacts: Tensor
+    energy: Tensor
+    grad: Tensor
+    terms: dict
+
+
+class Annealer:
+    """Annealed MALA with RMSProp preconditioning and contact switching (module docstring)."""
+
+    def __init__(self, problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torch.Generator):
+        self.problem, self.cfg, self.generator = problem, problem.cfg, generator
+        energy, grad, terms = energy_and_grad(problem, x, contacts)
+        self.state = AnnealerState(x.detach(), contacts, energy, grad, terms)
+        self.grad_sq_ema = self._grad_sq(grad)  # (D,) or (B, D), initialised with the first gradient
+        self.scale = torch.ones_like(x[0])  # (D,) per-group step multipliers
+        self.scale[TRANSLATION] = self.cfg.step_scale_translation
+        self.scale[ROTATION] = self.cfg.step_scale_rotation
+        self.scale[JOINTS] = self.cfg.step_scale_joints
+        self.step = 0
+        self._proposal: Optional[tuple[Tensor, Tensor]] = None
+
+    def _grad_sq(self, grad: Tensor) -> Tensor:
+        """g^2 averaged over the batch (D,), or per row (B, D) with ``rmsprop_per_row``."""
+        return grad * grad if self.cfg.rmsprop_per_row else (grad * grad).mean(0)
+
+    def try_step(self) -> tuple[Tensor, Tensor]:
+        """Propose (x', c') from the current state (steps 1 and 2); returns and remembers the proposal."""
+        cfg, state = self.cfg, self.state
+        s = step_size_at(self.step, cfg)
+        decay = cfg.rmsprop_decay
+        self.grad_sq_ema = decay * self.grad_sq_ema + (1.0 - decay) * self._grad_sq(state.grad)
+        precond = state.grad / (self.grad_sq_ema.sqrt() + cfg.rmsprop_epsilon)  # (B, D)
+        noise = torch.randn(state.x.shape, generator=self.generator, dtype=state.x.dtype,
+                            device=self.generator.device).to(state.x.device)
+        x_new = state.x - s * self.scale * precond + s * self.scale * cfg.langevin_noise * noise
+        contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator)
+        self._proposal = (x_new, contacts_new)
+        return x_new, contacts_new
+
+    def accept_step(self) -> Tensor:
+        """Evaluate the proposal, apply the Metropolis test at T_t (step 3), advance t.  -> accept mask (B,)."""
+        if self._proposal is None:
+            raise RuntimeError("accept_step needs a proposal: call try_step first")
+        x_new, contacts_new = self._proposal
+        self._proposal = None
+        energy_new, grad_new, terms_new = energy_and_grad(self.problem, x_new, contacts_new)
+        state = self.state
+        temperature = temperature_at(self.step, self.cfg)
+        alpha = torch.rand(state.energy.shape, generator=self.generator, dtype=state.energy.dtype,
+                           device=self.generator.device).to(state.energy.device)
+        # non-finite proposals (e.g. a degenerate rotation) are always rejected
+        accept = (alpha < torch.exp((state.energy - energy_new) / temperature)) & torch.isfinite(energy_new)
+        keep = accept.unsqueeze(-1)
+        state.x = torch.where(keep, x_new, state.x)
+        state.grad = torch.where(keep, grad_new, state.grad)
+        state.contacts = torch.where(keep.unsqueeze(-1), contacts_new, state.contacts)
+        state.energy = torch.where(accept, energy_new, state.energy)
+        state.terms = {k: torch.where(accept.reshape(-1, *[1] * (v.dim() - 1)), terms_new[k], v)
+                       for k, v in state.terms.items()}
+        self.step += 1
+        return accept
+
+
+def _report(progress: Optional[ProgressFn], cfg: SynthesisConfig, step: int, total: int, start: float, info: dict) -> None:
+    if progress is None or not (step % cfg.progress_every == 0 or step == total):
+        return
+    elapsed = time.perf_counter() - start
+    progress(step, total, {**info, "elapsed_s": elapsed, "eta_s": elapsed / max(step, 1) * (total - step)})
+
+
+def run_mala(problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torch.Generator,
+             progress: Optional[ProgressFn] = None) -> tuple[AnnealerState, dict]:
+    """``cfg.mala_steps`` annealer steps from (x, contacts).  -> (final state, stats: mean accept rate, seconds)."""
+    cfg = problem.cfg
+    annealer = Annealer(problem, x, contacts, generator)
+    start, accepted = time.perf_counter(), 0.0
+    for t in range(cfg.mala_steps):
+        annealer.try_step()
+        accept = annealer.accept_step()
+        accepted += float(accept.float().mean())
+        _report(progress, cfg, t + 1, cfg.mala_steps, start,
+                {"stage": "mala", "energy_mean": float(annealer.state.energy.mean()),
+                 "accept_rate": float(accept.float().mean()), "step_size": step_size_at(t, cfg),
+                 "temperature": temperature_at(t, cfg)})
+    stats = {"mala_accept_rate": accepted / max(cfg.mala_steps, 1), "mala_seconds": time.perf_counter() - start}
+    return annealer.state, stats
+
+
+def refine(problem: GraspProblem, x: Tensor, contacts: Tensor, progress: Optional[ProgressFn] = None) -> tuple[Tensor, dict]:
+    """Adam on E (with E_dist weighted by ``refine_w_dist``), contacts fixed, ``refine_steps`` steps.
+    With ``keep_best`` each row returns its lowest-energy pose.  -> (x (B, D), stats)."""
+    cfg = problem.cfg
+    start = time.perf_counter()
+    x = x.detach().clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([x], lr=cfg.refine_lr)
+    best_x = x.detach().clone()
+    best_energy = torch.full(x.shape[:1], float("inf"), dtype=x.dtype, device=x.device)  # (B,)
+    for t in range(cfg.refine_steps):
+        energy, grad, _ = energy_and_grad(problem, x.detach(), contacts, w_dist=cfg.refine_w_dist)
+        if cfg.keep_best:
+            better = energy < best_energy  # False for non-finite energies
+            best_energy = torch.where(better, energy, best_energy)
+            best_x = torch.where(better.unsqueeze(-1), x.detach(), best_x)
+        optimizer.zero_grad()
+        x.grad = grad
+        optimizer.step()
+        _report(progress, cfg, t + 1, cfg.refine_steps, start,
+                {"stage": "refine", "energy_mean": float(energy.mean())})
+    x = x.detach()
+    if cfg.keep_best and cfg.refine_steps > 0:
+        energy, _, _ = energy_and_grad(problem, x, contacts, w_dist=cfg.refine_w_dist)
+        x = torch.where((energy < best_energy).unsqueeze(-1), x, best_x)
+    return x, {"refine_seconds": time.perf_counter() - start}

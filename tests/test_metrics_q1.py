@@ -1,0 +1,120 @@
+"""Q1 (Ferrari-Canny): analytic grasps of a sphere, degenerate grasps, invariance, and the batched version."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from components.hand import HandConfig, HandModel
+from components.metrics import MetricsConfig, primitive_wrenches, q1_from_wrenches, q1_grasps, q1_single_object
+from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.synthesis import SceneObjects
+
+RADIUS = 0.025  # m
+AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
+RANK_TOL = MetricsConfig().q1_rank_tolerance
+
+
+def six_axis_q1(mu: float, edges: int, centre=np.zeros(3)) -> float:
+    """Six contacts at +-x, +-y, +-z of a sphere, forces along the inward normals."""
+    cfg = MetricsConfig(friction_coefficient=mu, friction_cone_edges=edges)
+    return q1_single_object(centre + RADIUS * AXES, AXES, centre, RADIUS, cfg)
+
+
+@pytest.mark.parametrize("mu", [0.1, 0.5, 1.0])
+def test_q1_of_six_axis_contacts_on_a_sphere_matches_the_analytic_value(mu):
+    # Q1 = min over unit u of the support function h(u) = max_i u . w_i.  Normal forces through the centre
+    # carry no torque, so only friction twists the sphere; along the torque diagonal u* = (0, 0, 0, 1, 1, 1)/sqrt(3):
+    # * 4 edges aligned with the axes: every edge torque is +-mu along one axis, h(u*) = mu / sqrt(3);
+    # * 8 edges: the 45-degree edge of each contact points along the projection of u* on its tangent plane,
+    #   |proj| = sqrt(2/3), so h(u*) = mu sqrt(2/3).
+    # The hull's nearest facet is the one normal to u*: Q1 equals h(u*).
+    assert six_axis_q1(mu, 4) == pytest.approx(mu / math.sqrt(3.0), rel=1e-9)
+    assert six_axis_q1(mu, 8) == pytest.approx(mu * math.sqrt(2.0 / 3.0), rel=1e-9)
+    # independent lower bound for 4 edges: h(u) >= max(|v|_inf, mu |m|_inf) for u = (v, m)
+    assert six_axis_q1(mu, 4) >= mu / math.sqrt(3.0 * (1.0 + mu * mu)) - 1e-12
+
+
+def test_q1_is_the_minimum_of_the_support_function_over_directions():
+    mu, edges = 0.5, 8
+    wrenches = primitive_wrenches(RADIUS * AXES, AXES, np.zeros(3), RADIUS, mu, edges)
+    q1 = q1_from_wrenches(wrenches, RANK_TOL)
+    directions = np.random.default_rng(0).normal(size=(20000, 6))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    support = (directions @ wrenches.T).max(axis=1)  # h(u) for every sampled u
+    assert q1 > 0.0
+    assert support.min() >= q1 - 1e-9  # the inscribed ball fits under every supporting hyperplane
+    assert support.min() <= 1.5 * q1  # and random directions come close to it
+
+
+def test_one_or_two_contacts_have_zero_q1():
+    cfg = MetricsConfig()
+    x = RADIUS * AXES
+    assert q1_single_object(x[:1], AXES[:1], np.zeros(3), RADIUS, cfg) == 0.0
+    # two antipodal point contacts cannot resist a torque about the line joining them (rank-deficient)
+    assert q1_single_object(x[:2], AXES[:2], np.zeros(3), RADIUS, cfg) == 0.0
+    assert q1_single_object(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3), RADIUS, cfg) == 0.0
+
+
+def test_contacts_on_one_hemisphere_have_zero_q1():
+    # every outward normal points up, so every contact force (along -n, within the cone) pushes down:
+    # nothing can lift the object, the origin is outside the wrench hull
+    rng = np.random.default_rng(1)
+    normals = rng.normal(size=(12, 3))
+    normals[:, 2] = np.abs(normals[:, 2]) + 2.0
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    assert q1_single_object(RADIUS * normals, normals, np.zeros(3), RADIUS, MetricsConfig(friction_coefficient=0.1)) == 0.0
+
+
+def test_q1_is_invariant_to_translating_the_object_and_its_contacts():
+    rng = np.random.default_rng(2)
+    normals = rng.normal(size=(10, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    cfg = MetricsConfig()
+    here = q1_single_object(RADIUS * normals, normals, np.zeros(3), RADIUS, cfg)
+    shift = np.array([0.3, -0.2, 0.5])
+    there = q1_single_object(RADIUS * normals + shift, normals, shift, RADIUS, cfg)
+    assert here > 0.0
+    assert there == pytest.approx(here, rel=1e-9)
+
+
+def test_q1_grows_with_friction_and_is_scale_free():
+    assert six_axis_q1(0.2, 8) < six_axis_q1(0.6, 8)
+    cfg = MetricsConfig()
+    big = q1_single_object(3 * RADIUS * AXES, AXES, np.zeros(3), 3 * RADIUS, cfg)  # torques normalised by radius
+    assert big == pytest.approx(six_axis_q1(cfg.friction_coefficient, cfg.friction_cone_edges), rel=1e-9)
+
+
+# ----------------------------------------------------------------------------- batched, with the hand
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return HandModel(HandConfig(), dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
+                         tmp_path_factory.getbasetemp() / "objects-cache")
+
+
+def test_q1_grasps_is_invariant_to_moving_hand_and_objects_together(hand, library):
+    # a sphere pressed into the palm between the fingers: many hand samples within 5 mm of it
+    p = torch.tensor([[0.0, 0.0, 0.3]], dtype=torch.float64)
+    R = torch.eye(3, dtype=torch.float64).unsqueeze(0)
+    q = hand.open_pose().unsqueeze(0)
+    q[0, [1, 2, 5, 6, 9, 10, 14, 15]] = 1.2  # curl the fingers
+    centre = (0.0, -0.035, 0.38)
+    cfg = MetricsConfig(q1_max_contacts=12)
+    shift = torch.tensor([0.2, -0.1, 0.05], dtype=torch.float64)
+    values = []
+    for offset in (torch.zeros(3, dtype=torch.float64), shift):
+        scene = Scene(objects=(Placement("sphere", tuple((torch.tensor(centre) + offset).tolist()), (0.0, 0.0, 0.0, 1.0)),))
+        objects = SceneObjects(library, scene, dtype=torch.float64)
+        q1, per_object = q1_grasps(hand, objects, p + offset, R, q, cfg)
+        assert q1.shape == (1,) and per_object.shape == (1, 1)
+        values.append(float(q1[0]))
+    assert values[0] > 0.0  # the curled fingers and the palm hold the sphere
+    assert values[1] == pytest.approx(values[0], abs=1e-9)

@@ -1,0 +1,206 @@
+"""Synthesis energy: each term on an analytic case, culled penetration == dense, finite gradients, initial poses."""
+
+import math
+
+import pytest
+import torch
+
+from components.hand import HandConfig, HandModel
+from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.synthesis import (
+    GraspProblem,
+    HandSurface,
+    SceneObjects,
+    SynthesisConfig,
+    contact_distance_energy,
+    energy,
+    energy_and_grad,
+    force_closure_error,
+    initial_poses,
+    matrix_to_rot6d,
+    pack,
+    rot6d_to_matrix,
+    table_penetration,
+    unpack,
+)
+from components.synthesis.energy import hand_points_object_distances, object_points_hand_distances
+from components.synthesis.initializations import palm_centre_local
+
+DTYPE = torch.float64
+SPHERE_RADIUS = 0.025
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return HandModel(HandConfig(), dtype=DTYPE)
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
+                         tmp_path_factory.getbasetemp() / "objects-cache")
+
+
+@pytest.fixture(scope="module")
+def sphere(library):
+    scene = Scene(objects=(Placement("sphere", (0.01, -0.02, SPHERE_RADIUS), IDENTITY),))
+    return SceneObjects(library, scene, dtype=DTYPE)
+
+
+def equator_points(objects: SceneObjects, angles_deg, radius_scale: float = 1.0) -> torch.Tensor:
+    angles = torch.tensor(angles_deg, dtype=DTYPE) * math.pi / 180
+    ring = torch.stack([torch.cos(angles), torch.sin(angles), torch.zeros_like(angles)], dim=-1)
+    return (objects.positions[0] + radius_scale * SPHERE_RADIUS * ring).unsqueeze(0)  # (1, C, 3)
+
+
+def test_contacts_on_the_sphere_surface_have_zero_distance_energy(sphere):
+    points = equator_points(sphere, [0.0, 77.0, 200.0])
+    d, _ = sphere.object_sdf_and_normal(0, points)
+    assert float(contact_distance_energy(d)[0]) == pytest.approx(0.0, abs=1e-9)
+    d_out, _ = sphere.object_sdf_and_normal(0, equator_points(sphere, [0.0, 77.0, 200.0], radius_scale=1.2))
+    assert float(contact_distance_energy(d_out)[0]) == pytest.approx(3 * 0.2 * SPHERE_RADIUS, rel=1e-9)
+
+
+def test_three_contacts_at_120_degrees_are_in_force_closure_and_three_on_one_side_are_not(sphere):
+    centre, radius = sphere.positions[0], sphere.radii[0]
+    balanced = equator_points(sphere, [0.0, 120.0, 240.0])
+    _, n = sphere.object_sdf_and_normal(0, balanced)
+    # |G n|^2 = |sum n|^2 + |sum x x n|^2 = 0: the normals cancel and pass through the centre
+    assert float(force_closure_error(balanced, n, centre, radius, margin=0.0)[0]) == pytest.approx(0.0, abs=1e-12)
+    one_side = equator_points(sphere, [0.0, 20.0, 40.0])
+    _, n = sphere.object_sdf_and_normal(0, one_side)
+    expected = float((n.sum(1) ** 2).sum())  # no torque: only the unbalanced force remains
+    assert float(force_closure_error(one_side, n, centre, radius, margin=0.0)[0]) == pytest.approx(expected, rel=1e-9)
+    assert expected > 7.0  # |sum n| ~ 2.8 for three nearly parallel unit normals
+    assert float(force_closure_error(one_side, n, centre, radius, margin=0.2)[0]) == pytest.approx(expected - 0.2)
+
+
+def test_torque_rows_of_the_force_closure_error_use_lever_arms_over_the_radius(sphere):
+    centre = sphere.positions[0]
+    points = centre + torch.tensor([[[0.02, 0.0, 0.0], [-0.02, 0.0, 0.0]]], dtype=DTYPE)
+    normals = torch.tensor([[[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]], dtype=DTYPE)  # a pure couple
+    # sum n = 0; sum x x n = 2 * (0.02 / r) e_z
+    value = force_closure_error(points, normals, centre, torch.tensor(0.025, dtype=DTYPE), margin=0.0)
+    assert float(value[0]) == pytest.approx((2 * 0.02 / 0.025) ** 2, rel=1e-9)
+
+
+def test_table_penetration_sums_the_depth_of_geoms_below_the_table():
+    lowest = torch.tensor([[0.01, -0.002, -0.003, 0.0]], dtype=DTYPE)
+    assert float(table_penetration(lowest, 0.0)[0]) == pytest.approx(0.005)
+
+
+def test_rot6d_round_trip_and_orthonormality():
+    rot = rot6d_to_matrix(torch.randn(16, 6, dtype=DTYPE, generator=torch.Generator().manual_seed(0)))
+    assert torch.allclose(rot.transpose(1, 2) @ rot, torch.eye(3, dtype=DTYPE).expand(16, 3, 3), atol=1e-12)
+    assert torch.allclose(torch.det(rot), torch.ones(16, dtype=DTYPE))
+    assert torch.allclose(rot6d_to_matrix(matrix_to_rot6d(rot)), rot, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- penetration with culling
+
+
+def finger_in_sphere_pose(hand, library, overlap: float):
+    """Open hand, a sphere pushed ``overlap`` into the FF distal capsule from the palm side."""
+    p = torch.tensor([[0.0, 0.0, 0.3]], dtype=DTYPE)
+    R = torch.eye(3, dtype=DTYPE).unsqueeze(0)
+    q = hand.open_pose().unsqueeze(0)
+    prims = hand.collision_primitives(p, R, q)
+    k = [hand.collision_geom_names[i] for i in hand.collision.capsule_ids].index("C_ffdistal")
+    radius = float(hand.collision.capsule_radius[k])
+    centre = 0.5 * (prims.capsule_a[0, k] + prims.capsule_b[0, k]) - (radius + SPHERE_RADIUS - overlap) * R[0, :, 1]
+    scene = Scene(objects=(Placement("sphere", tuple(centre.tolist()), IDENTITY),))
+    return p, R, q, SceneObjects(library, scene, dtype=DTYPE)
+
+
+def test_culled_penetration_distances_match_the_dense_ones_in_value_and_gradient(hand, library):
+    p0, R0, q0, objects = finger_in_sphere_pose(hand, library, overlap=0.004)
+    points = objects.surface_points(512, 0).reshape(1, -1, 3)
+    x0 = pack(p0, R0, q0)
+
+    def penetration(fn) -> tuple:
+        x = x0.clone().requires_grad_(True)
+        p, R, q = unpack(x)
+        value = fn(p, R, q)
+        (grad,) = torch.autograd.grad(value, x)
+        return float(value.detach()), grad
+
+    def culled(p, R, q):
+        prims = hand.collision.pose(hand.forward_kinematics(q))
+        return torch.relu(-object_points_hand_distances(hand, points, p, R, prims)).sum()
+
+    def dense(p, R, q):
+        return torch.relu(-hand.signed_distance(points, p, R, q)).sum()
+
+    (v_culled, g_culled), (v_dense, g_dense) = penetration(culled), penetration(dense)
+    assert v_dense > 0.0
+    assert v_culled == pytest.approx(v_dense, rel=1e-12)
+    assert torch.allclose(g_culled, g_dense, rtol=1e-9, atol=1e-12)
+
+    surface = HandSurface(hand, 0.005)
+
+    def culled_hand(p, R, q):
+        return torch.relu(-hand_points_object_distances(objects, surface.world(hand, p, R, q))).sum()
+
+    def dense_hand(p, R, q):
+        return torch.relu(-objects.sdf(surface.world(hand, p, R, q))).sum()
+
+    (v_culled, g_culled), (v_dense, g_dense) = penetration(culled_hand), penetration(dense_hand)
+    assert v_dense > 0.0
+    assert v_culled == pytest.approx(v_dense, rel=1e-12)
+    assert torch.allclose(g_culled, g_dense, rtol=1e-9, atol=1e-12)
+
+
+def test_energy_terms_of_a_finger_in_a_sphere(hand, library):
+    p, R, q, objects = finger_in_sphere_pose(hand, library, overlap=0.004)
+    problem = GraspProblem.build(hand, objects, SynthesisConfig(batch_size=1))
+    contacts = torch.tensor([[[0, 50, 100]]])
+    total, terms = energy(problem, pack(p, R, q), contacts)
+    assert terms["pen_object_points"][0, 0] > 0 and terms["pen_hand_points"][0, 0] > 0
+    assert float(terms["penetration_depth_objects"][0, 0]) == pytest.approx(0.004, abs=5e-4)  # sampled, 256 points
+    assert float(terms["pen_table"][0]) == 0.0 and float(terms["prior"][0]) == 0.0
+    cfg = problem.cfg
+    expected = (cfg.w_fc * terms["fc"] + cfg.w_dist * terms["dist"] + cfg.w_pen * terms["pen"]
+                + cfg.w_prior * terms["prior"])
+    assert torch.allclose(total.detach(), expected)
+    # out of the joint limits -> prior; below the table -> pen_table
+    q_bad = q.clone()
+    q_bad[0, 1] = float(hand.joint_limits[1, 1]) + 0.2
+    _, terms = energy(problem, pack(p, R, q_bad), contacts)
+    assert float(terms["prior"][0]) == pytest.approx(0.2, rel=1e-6)
+    _, terms = energy(problem, pack(p - torch.tensor([[0.0, 0.0, 0.35]], dtype=DTYPE), R, q), contacts)
+    assert float(terms["pen_table"][0]) > 0.0 and float(terms["penetration_depth_table"][0]) > 0.04
+
+
+def test_energy_gradients_are_finite_for_random_initial_poses(hand, library):
+    scene = Scene(objects=(Placement("cube", (-0.03, 0.0, 0.02), IDENTITY), Placement("sphere", (0.03, 0.01, SPHERE_RADIUS), IDENTITY)))
+    problem = GraspProblem.build(hand, SceneObjects(library, scene, dtype=DTYPE), SynthesisConfig(batch_size=6))
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    total, grad, terms = energy_and_grad(problem, x, contacts)
+    assert total.shape == (6,) and grad.shape == x.shape == (6, 31)
+    assert torch.isfinite(total).all() and torch.isfinite(grad).all()
+    assert grad[:, :9].abs().sum() > 0  # the pose moves
+    for name in ("fc_per_object", "dist_per_object", "pen_object_points", "pen_hand_points"):
+        assert terms[name].shape == (6, 2)
+
+
+def test_initial_poses_face_the_objects_from_above_at_the_configured_distance(hand, library):
+    scene = Scene(objects=(Placement("cube", (-0.03, 0.0, 0.02), IDENTITY), Placement("sphere", (0.03, 0.01, SPHERE_RADIUS), IDENTITY)))
+    objects = SceneObjects(library, scene, dtype=DTYPE)
+    cfg = SynthesisConfig(batch_size=64, init_jitter_deg=0.0)
+    problem = GraspProblem.build(hand, objects, cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(1))
+    p, R, q = unpack(x)
+    palm_centre = p + R @ palm_centre_local(hand)
+    offset = palm_centre - objects.centroid
+    distance = offset.norm(dim=-1) - objects.bounding_radius
+    assert torch.all(distance >= cfg.init_distance_min_m - 1e-9) and torch.all(distance <= cfg.init_distance_max_m + 1e-9)
+    u = offset / offset.norm(dim=-1, keepdim=True)
+    assert torch.all(u[:, 2] >= math.cos(math.radians(cfg.init_max_polar_deg)) - 1e-9)  # above the objects
+    palm_normal = -R[:, :, 1]
+    assert torch.allclose((palm_normal * -u).sum(-1), torch.ones(64, dtype=DTYPE))  # facing the centroid
+    lower, upper = hand.joint_limits.unbind(-1)
+    assert torch.all(q >= lower - 1e-9) and torch.all(q <= upper + 1e-9)
+    flat = contacts.reshape(64, -1)
+    assert all(len(set(row.tolist())) == flat.shape[1] for row in flat)  # distinct contacts per row
+    assert contacts.shape == (64, 2, cfg.contacts_per_object)

@@ -1,0 +1,142 @@
+"""Synthesis optimiser: schedules, contact switching, the filter's reasons, and a short end-to-end run."""
+
+
+import pytest
+import torch
+
+from components.hand import HandConfig, HandModel
+from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.synthesis import (
+    ACCEPTED,
+    FILTER_REASONS,
+    Annealer,
+    GraspProblem,
+    SceneObjects,
+    SynthesisConfig,
+    count_reasons,
+    energy_and_grad,
+    filter_grasps,
+    initial_poses,
+    step_size_at,
+    switch_contacts,
+    synthesize,
+    temperature_at,
+)
+
+SPHERE_RADIUS = 0.025
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return HandModel(HandConfig())
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
+                         tmp_path_factory.getbasetemp() / "objects-cache")
+
+
+def test_official_schedules_at_6500_steps():
+    cfg = SynthesisConfig()
+    assert cfg.schedule_periods() == (100, 50)
+    assert step_size_at(0, cfg) == pytest.approx(0.01) and step_size_at(99, cfg) == pytest.approx(0.01)
+    assert step_size_at(100, cfg) == pytest.approx(0.0095) and step_size_at(250, cfg) == pytest.approx(0.01 * 0.95 ** 2)
+    assert temperature_at(49, cfg) == pytest.approx(8.0) and temperature_at(50, cfg) == pytest.approx(7.6)
+    assert temperature_at(6499, cfg) == pytest.approx(8.0 * 0.95 ** 129)
+
+
+def test_short_runs_compress_the_schedule_to_the_same_final_values():
+    short = SynthesisConfig(mala_steps=650)
+    assert short.schedule_periods() == (10, 5)
+    assert temperature_at(649, short) == pytest.approx(temperature_at(6499, SynthesisConfig()))
+    assert SynthesisConfig(mala_steps=650, compress_schedule=False).schedule_periods() == (100, 50)
+
+
+@pytest.mark.parametrize("mode", ["per_step", "per_contact"])
+def test_contact_switching_keeps_contacts_distinct_and_switches_at_the_configured_rate(hand, mode):
+    cfg = SynthesisConfig(contact_switch_mode=mode, contact_switch_probability=0.25)
+    generator = torch.Generator().manual_seed(0)
+    batch, n_obj, per_object = 4000, 2, 3
+    keys = torch.rand(batch, len(hand.contact_region_of), generator=generator)
+    contacts = keys.argsort(1)[:, : n_obj * per_object].reshape(batch, n_obj, per_object)
+    new = switch_contacts(contacts, hand.contact_region_of, cfg, generator)
+    flat = new.reshape(batch, -1)
+    assert all(len(set(row.tolist())) == flat.shape[1] for row in flat)
+    changed = (new != contacts).reshape(batch, -1)
+    if mode == "per_step":  # one contact per object in a quarter of the rows
+        rows = changed.any(1)
+        assert rows.float().mean() == pytest.approx(0.25, abs=0.03)
+        assert torch.all(changed[rows].reshape(-1, n_obj, per_object).sum(-1) == 1)
+    else:
+        assert changed.float().mean() == pytest.approx(0.25, abs=0.02)
+
+
+def test_local_switches_stay_in_the_contacts_region(hand):
+    cfg = SynthesisConfig(contact_switch_mode="per_contact", contact_switch_probability=1.0,
+                          contact_switch_local_probability=1.0)
+    contacts = torch.tensor([[[0, 20, 40], [60, 80, 100]]]).repeat(200, 1, 1)
+    new = switch_contacts(contacts, hand.contact_region_of, cfg, torch.Generator().manual_seed(1))
+    assert torch.all(new != contacts)
+    assert torch.equal(hand.contact_region_of[new], hand.contact_region_of[contacts])
+
+
+def test_filter_reports_the_first_failing_criterion_and_counts_them():
+    cfg = SynthesisConfig()
+    ok = {"fc_per_object": torch.tensor([[0.1, 0.0]]), "contact_distance_max": torch.tensor([0.001]),
+          "penetration_depth_max": torch.tensor([0.001]), "prior": torch.tensor([0.0])}
+    rows = [dict(ok), dict(ok, fc_per_object=torch.tensor([[0.1, 0.3]])),
+            dict(ok, contact_distance_max=torch.tensor([0.006])),
+            dict(ok, penetration_depth_max=torch.tensor([0.0051]), prior=torch.tensor([0.2])),
+            dict(ok, prior=torch.tensor([0.11])), dict(ok, prior=torch.tensor([float("nan")]))]
+    terms = {k: torch.cat([r[k] for r in rows]) for k in ok}
+    accepted, reasons = filter_grasps(terms, cfg)
+    assert accepted.tolist() == [True, False, False, False, False, False]
+    assert reasons == [ACCEPTED, "fc", "contact_distance", "penetration", "prior", "non_finite"]
+    counts = count_reasons(reasons)
+    assert counts == {ACCEPTED: 1, "non_finite": 1, "fc": 1, "contact_distance": 1, "penetration": 1, "prior": 1}
+    assert set(counts) == {ACCEPTED, *FILTER_REASONS}
+
+
+def test_annealer_rejected_rows_keep_their_state(hand, library):
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), IDENTITY),))
+    cfg = SynthesisConfig(batch_size=8, temperature=1e-12, temperature_decay=1.0)  # only downhill moves pass
+    problem = GraspProblem.build(hand, SceneObjects(library, scene), cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    annealer = Annealer(problem, x, contacts, torch.Generator().manual_seed(1))
+    before = annealer.state.energy.clone()
+    old_x, old_contacts = annealer.state.x.clone(), annealer.state.contacts.clone()
+    annealer.try_step()
+    accept = annealer.accept_step()
+    assert torch.all(annealer.state.energy[accept] <= before[accept])
+    assert torch.equal(annealer.state.x[~accept], old_x[~accept])
+    assert torch.equal(annealer.state.contacts[~accept], old_contacts[~accept])
+    assert torch.equal(annealer.state.energy[~accept], before[~accept])
+    with pytest.raises(RuntimeError):
+        annealer.accept_step()  # a proposal is used once
+
+
+def test_short_synthesis_of_a_sphere_runs_end_to_end_and_lowers_the_energy(hand, library):
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), IDENTITY),))
+    cfg = SynthesisConfig(batch_size=8, mala_steps=40, refine_steps=10, progress_every=10)
+    problem = GraspProblem.build(hand, SceneObjects(library, scene), cfg)
+    x0, contacts0 = initial_poses(problem, torch.Generator().manual_seed(0))
+    initial_energy, _, _ = energy_and_grad(problem, x0, contacts0)
+    calls = []
+    result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(0),
+                        progress=lambda step, total, info: calls.append((info["stage"], step, total, info["eta_s"])))
+    assert result.p.shape == (8, 3) and result.R.shape == (8, 3, 3) and result.q.shape == (8, 22)
+    assert result.contacts.shape == (8, 1, 3) and result.contact_regions.shape == (8, 1, 3)
+    assert torch.isfinite(result.energy).all()
+    assert float(result.energy.mean()) < 0.8 * float(initial_energy.mean())
+    assert len(result.reasons) == 8 and set(result.reasons) <= {ACCEPTED, *FILTER_REASONS}
+    assert sum(result.reason_counts().values()) == 8
+    assert result.accepted.sum() == result.reason_counts()[ACCEPTED]
+    assert [c[:3] for c in calls] == [("mala", s, 40) for s in (10, 20, 30, 40)] + [("refine", s, 10) for s in (10,)]
+    assert calls[-1][3] == 0.0
+    arrays = result.to_numpy()
+    assert arrays["q"].shape == (8, 22) and "term_fc" in arrays
+    # the same generator seed gives the same result
+    again = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(0))
+    assert torch.equal(again.q, result.q) and again.reasons == result.reasons
