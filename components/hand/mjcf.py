@@ -24,7 +24,7 @@ Choices (with reasons)
   group 4 with a non-zero ``contype`` or ``conaffinity``: 16 capsules (wrist, 3 per finger,
   3 on the thumb), 3 boxes (palm0, palm1, lfmetacarpal) and the forearm's convex mesh.  The two 1 mm
   boxes ``V_thbase`` / ``V_thhub`` collide in MuJoCo (they inherit ``asset_class``) but are
-  placeholders in group 1 that sit inside the thumb capsules: they are left out.
+  1 mm filler boxes in group 1 that sit inside the thumb capsules: they are left out.
 * **Forearm.**  Its collision geom is a convex mesh (a near-cylinder of radius ~68 mm, length ~23 cm).
   It is replaced by its bounding cylinder along the mesh's longest principal axis (the compiled geom
   frame is the mesh's inertia frame), so analytic distances stay exact for a conservative shape.
