@@ -27,6 +27,7 @@ from torch import Tensor
 
 from components.hand import HandModel
 from components.metrics.config import MetricsConfig
+from components.objects.library import farthest_point_indices
 from components.synthesis.hand_surface import HandSurface
 from components.synthesis.scene_objects import SceneObjects
 
@@ -86,18 +87,6 @@ def q1_single_object(points: np.ndarray, normals: np.ndarray, centre: np.ndarray
         return 0.0
     wrenches = primitive_wrenches(points, normals, centre, radius, cfg.friction_coefficient, cfg.friction_cone_edges)
     return q1_from_wrenches(wrenches, cfg.q1_rank_tolerance)
-
-
-def farthest_point_indices(points: np.ndarray, n: int, start: int) -> np.ndarray:
-    """Indices of a greedy farthest-point subset of ``points`` (P, 3) of size min(n, P), from ``start``."""
-    n = min(n, len(points))
-    chosen = np.empty(n, dtype=np.int64)
-    chosen[0] = start
-    dist = np.linalg.norm(points - points[start], axis=1)  # (P,) distance to the chosen set
-    for i in range(1, n):
-        chosen[i] = int(dist.argmax())
-        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
-    return chosen
 
 
 def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarray,

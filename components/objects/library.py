@@ -401,8 +401,8 @@ def verify_resting_poses(model: ObjectModel, transforms: np.ndarray, cfg: Object
     return kept
 
 
-def farthest_point_sampling(points: np.ndarray, n: int, start: int) -> np.ndarray:
-    """Greedy farthest-point subset of ``points`` (P, 3) of size ``n`` (n, 3), starting at index ``start``."""
+def farthest_point_indices(points: np.ndarray, n: int, start: int) -> np.ndarray:
+    """Indices of a greedy farthest-point subset of ``points`` (P, 3) of size min(n, P), from ``start``."""
     n = min(n, len(points))
     chosen = np.empty(n, dtype=np.int64)
     chosen[0] = start
@@ -410,7 +410,12 @@ def farthest_point_sampling(points: np.ndarray, n: int, start: int) -> np.ndarra
     for i in range(1, n):
         chosen[i] = int(dist.argmax())
         dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
-    return points[chosen]
+    return chosen
+
+
+def farthest_point_sampling(points: np.ndarray, n: int, start: int) -> np.ndarray:
+    """Greedy farthest-point subset of ``points`` (P, 3) of size ``n`` (n, 3), starting at index ``start``."""
+    return points[farthest_point_indices(points, n, start)]
 
 
 # ----------------------------------------------------------------------------- ObjectLibrary
