@@ -122,7 +122,7 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
     for handler in [h for name in ("prefect", "") for h in logging.getLogger(name).handlers]:
         if not any(isinstance(f, HideUserErrorTracebacks) for f in handler.filters):
             handler.addFilter(HideUserErrorTracebacks())
-    from prefect.settings import (PREFECT_API_URL, PREFECT_LOCAL_STORAGE_PATH,
+    from prefect.settings import (PREFECT_API_URL, PREFECT_LOCAL_STORAGE_PATH, PREFECT_LOGGING_TO_API_ENABLED,
                                   PREFECT_RESULTS_PERSIST_BY_DEFAULT, temporary_settings)
 
     workdir = cfg.run.workdir
@@ -134,7 +134,12 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
             url = stack.enter_context(local_prefect_server(workdir))
             updates[PREFECT_API_URL] = url
             # process workers read the environment, not this process's settings context
-            stack.enter_context(_environ({"PREFECT_API_URL": url, "PREFECT_LOCAL_STORAGE_PATH": str(records)}))
+            # Run logs are not sent to this short-lived server: Prefect's log worker would flush
+            # them at interpreter exit, after the server is gone, and start a temporary server
+            # just for that (~1 min on 2 cores). Progress is printed and tracked in MLflow.
+            updates[PREFECT_LOGGING_TO_API_ENABLED] = False
+            stack.enter_context(_environ({"PREFECT_API_URL": url, "PREFECT_LOCAL_STORAGE_PATH": str(records),
+                                          "PREFECT_LOGGING_TO_API_ENABLED": "false"}))
         stack.enter_context(temporary_settings(updates=updates))
         yield
 
