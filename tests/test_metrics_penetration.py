@@ -3,26 +3,15 @@
 import pytest
 import torch
 
-from components.hand import HandConfig, HandModel
+from components.hand import HandModel
 from components.metrics import MetricsConfig, penetration_depth
-from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.objects import Placement, Scene
 from components.synthesis import SceneObjects
 
 DTYPE = torch.float64
 SPHERE_RADIUS = 0.025  # m, the library's sphere
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 TOLERANCE_MM = 0.1
-
-
-@pytest.fixture(scope="module")
-def hand():
-    return HandModel(HandConfig(), dtype=DTYPE)
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
-                         tmp_path_factory.getbasetemp() / "objects-cache")
 
 
 def open_hand_at(z: float, hand: HandModel):

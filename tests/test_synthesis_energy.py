@@ -5,8 +5,7 @@ import math
 import pytest
 import torch
 
-from components.hand import HandConfig, HandModel
-from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.objects import Placement, Scene
 from components.synthesis import (
     GraspProblem,
     HandSurface,
@@ -29,17 +28,6 @@ from components.synthesis.initializations import palm_centre_local
 DTYPE = torch.float64
 SPHERE_RADIUS = 0.025
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
-
-
-@pytest.fixture(scope="module")
-def hand():
-    return HandModel(HandConfig(), dtype=DTYPE)
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
-                         tmp_path_factory.getbasetemp() / "objects-cache")
 
 
 @pytest.fixture(scope="module")
