@@ -14,7 +14,9 @@ from components.synthesis import (
     contact_distance_energy,
     energy,
     energy_and_grad,
+    contact_alignment_energy,
     force_closure_error,
+    friction_tilted_forces,
     initial_poses,
     matrix_to_rot6d,
     pack,
@@ -149,7 +151,7 @@ def test_energy_terms_of_a_finger_in_a_sphere(hand, library):
     assert float(terms["pen_table"][0]) == 0.0 and float(terms["prior"][0]) == 0.0
     cfg = problem.cfg
     expected = (cfg.w_fc * terms["fc"] + cfg.w_dist * terms["dist"] + cfg.w_pen * terms["pen"]
-                + cfg.w_prior * terms["prior"])
+                + cfg.w_prior * terms["prior"] + cfg.w_align * terms["align"])
     assert torch.allclose(total.detach(), expected)
     # out of the joint limits -> prior; below the table -> pen_table
     q_bad = q.clone()
@@ -192,3 +194,39 @@ def test_initial_poses_face_the_objects_from_above_at_the_configured_distance(ha
     flat = contacts.reshape(64, -1)
     assert all(len(set(row.tolist())) == flat.shape[1] for row in flat)  # distinct contacts per row
     assert contacts.shape == (64, 2, cfg.contacts_per_object)
+
+
+def test_friction_lets_a_pinch_plus_a_third_face_contact_balance():
+    """Box faces +x, -x, +z: frictionless |sum n|^2 = 1; with mu = 0.5 the two side contacts take 1/3 of the
+    residual each along their tangent planes, leaving |sum f|^2 = (1/3)^2."""
+    normals = torch.tensor([[[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]], dtype=DTYPE)
+    points = torch.tensor([[[0.02, 0.0, 0.0], [-0.02, 0.0, 0.0], [0.0, 0.0, 0.02]]], dtype=DTYPE)
+    centre, radius = torch.zeros(3, dtype=DTYPE), torch.tensor(0.02, dtype=DTYPE)
+    frictionless = force_closure_error(points, normals, centre, radius, margin=0.0)
+    assert float(frictionless[0]) == pytest.approx(1.0, rel=1e-9)  # torques cancel, net force = n_3
+    with_friction = force_closure_error(points, normals, centre, radius, margin=0.0, friction=0.5)
+    assert float(with_friction[0]) == pytest.approx(1.0 / 9.0, rel=1e-9)
+    forces = friction_tilted_forces(normals, 0.5)
+    tangential = forces - (forces * normals).sum(-1, keepdim=True) * normals
+    assert float(tangential.norm(dim=-1).max()) <= 0.5 + 1e-12  # inside the Coulomb cones
+    tight = friction_tilted_forces(normals, 0.1)
+    assert float((tight - normals).norm(dim=-1).max()) == pytest.approx(0.1, rel=1e-9)  # clamped to mu
+
+
+def test_contact_alignment_is_zero_for_opposed_normals_and_two_for_equal_ones():
+    up = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=DTYPE)
+    assert float(contact_alignment_energy(-up, up)[0]) == 0.0
+    assert float(contact_alignment_energy(up, up)[0]) == pytest.approx(2.0)
+
+
+def test_contact_candidate_normals_are_outward_unit_normals_of_the_hand_surface(hand):
+    batch = 3
+    generator = torch.Generator().manual_seed(3)
+    q = hand.sample_joint_angles(batch, generator).to(DTYPE)
+    p = torch.zeros(batch, 3, dtype=DTYPE)
+    R = torch.eye(3, dtype=DTYPE).expand(batch, 3, 3)
+    points, normals = hand.contact_candidates_and_normals(p, R, q)
+    assert torch.allclose(points, hand.contact_candidates(p, R, q))
+    assert torch.allclose(normals.norm(dim=-1), torch.ones(normals.shape[:2], dtype=DTYPE))
+    outside = hand.signed_distance(points + 0.002 * normals, p, R, q)  # 2 mm out along the normal
+    assert float(outside.median()) == pytest.approx(0.002, abs=1e-4)

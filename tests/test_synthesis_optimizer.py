@@ -140,3 +140,36 @@ def test_short_synthesis_of_a_sphere_runs_end_to_end_and_lowers_the_energy(hand,
     # the same generator seed gives the same result
     again = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(0))
     assert torch.equal(again.q, result.q) and again.reasons == result.reasons
+
+
+def _fingers_distinct_per_object(contacts, finger_of):
+    fingers = finger_of[contacts]  # (B, n_obj, C)
+    return all(len(set(obj.tolist())) == obj.numel() for row in fingers for obj in row)
+
+
+def test_initial_and_switched_contacts_of_one_object_sit_on_different_fingers(hand, library):
+    scene = Scene(objects=(Placement("cube", (0.0, -0.03, 0.025), IDENTITY),
+                           Placement("sphere", (0.0, 0.03, SPHERE_RADIUS), IDENTITY)))
+    cfg = SynthesisConfig(batch_size=500, contact_switch_mode="per_contact", contact_switch_probability=1.0)
+    problem = GraspProblem.build(hand, SceneObjects(library, scene), cfg)
+    generator = torch.Generator().manual_seed(0)
+    _, contacts = initial_poses(problem, generator)
+    assert _fingers_distinct_per_object(contacts, problem.finger_of)
+    for _ in range(3):
+        contacts = switch_contacts(contacts, hand.contact_region_of, cfg, generator, finger_of=problem.finger_of)
+        assert _fingers_distinct_per_object(contacts, problem.finger_of)
+        flat = contacts.reshape(contacts.shape[0], -1)
+        assert all(len(set(row.tolist())) == flat.shape[1] for row in flat)
+
+
+def test_guided_switches_pick_candidates_in_proportion_to_their_weights(hand):
+    cfg = SynthesisConfig(contact_switch_mode="per_contact", contact_switch_probability=1.0,
+                          contact_switch_local_probability=0.0, contact_switch_guided_probability=1.0)
+    batch, n_candidates = 4000, len(hand.contact_region_of)
+    contacts = torch.tensor([[[0]]]).repeat(batch, 1, 1)
+    log_weights = torch.full((batch, 1, n_candidates), -30.0)
+    log_weights[:, 0, 10], log_weights[:, 0, 20] = 0.0, float(torch.log(torch.tensor(3.0)))  # odds 1 : 3
+    new = switch_contacts(contacts, hand.contact_region_of, cfg, torch.Generator().manual_seed(2),
+                          log_weights=log_weights)
+    assert set(new.flatten().tolist()) <= {10, 20}
+    assert float((new == 20).float().mean()) == pytest.approx(0.75, abs=0.03)

@@ -72,6 +72,7 @@ class HandModel:
                                               dtype=torch.long, device=self.device)  # (K,)
         self._candidate_link = torch.tensor([link_index[n] for n in candidates.link_names], device=self.device)
         self._candidate_local = torch.tensor(candidates.points, dtype=dtype, device=self.device)  # (K, 3)
+        self._candidate_normal_local = torch.tensor(candidates.normals, dtype=dtype, device=self.device)  # (K, 3)
 
         keypoints = load_keypoints(self.spec, assets)
         self.keypoint_names: list = keypoints.names  # (31,)
@@ -124,6 +125,13 @@ class HandModel:
     def contact_candidates(self, p: Tensor, R: Tensor, q: Tensor) -> Tensor:
         """All contact candidate points in the world; region of each: ``contact_region_of``.   -> (B, K, 3)."""
         return self._points_on_links(self._candidate_link, self._candidate_local, p, R, q)
+
+    def contact_candidates_and_normals(self, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
+        """Contact candidates (B, K, 3) and their outward unit surface normals (B, K, 3) in the world."""
+        frames = self.forward_kinematics(q)[:, self._candidate_link]  # (B, K, 4, 4) in the palm frame
+        points = transform_points(frames, self._candidate_local) @ R.transpose(1, 2) + p.unsqueeze(1)
+        normals = (frames[..., :3, :3] @ self._candidate_normal_local.unsqueeze(-1)).squeeze(-1) @ R.transpose(1, 2)
+        return points, normals
 
     def keypoints(self, p: Tensor, R: Tensor, q: Tensor) -> Tensor:
         """The 31 keypoints (``keypoint_names`` order) in the world.   -> (B, 31, 3)."""

@@ -36,6 +36,7 @@ class LinkPoints:
     names: list  # (K,) region name of each point (contact candidates) or keypoint name
     link_names: list  # (K,)
     points: np.ndarray  # (K, 3) in the link frame
+    normals: np.ndarray | None = None  # (K, 3) outward unit surface normals in the link frame (contact candidates)
 
 
 def golden_lattice(n: int) -> np.ndarray:
@@ -74,8 +75,9 @@ def box_face_points(half_extents: np.ndarray, palmar: np.ndarray, extent_u: list
     return points
 
 
-def region_points(region: dict, geom: GeomSpec, n: int) -> np.ndarray:
-    """The n contact candidates of one region, in its link frame.   -> (n, 3)."""
+def region_points(region: dict, geom: GeomSpec, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The n contact candidates of one region and their outward unit surface normals, in its link frame.
+    -> (n, 3), (n, 3).  Capsule normals point from the nearest point of the axis segment to the point."""
     lattice = golden_lattice(n)
     palmar = np.asarray(region["palmar"], dtype=np.float64)
     if geom.kind == "capsule":
@@ -86,12 +88,19 @@ def region_points(region: dict, geom: GeomSpec, n: int) -> np.ndarray:
         palmar_geom[2] = 0.0  # keep it perpendicular to the capsule axis
         local = capsule_surface_points(geom.size[1], geom.size[0], palmar_geom / np.linalg.norm(palmar_geom),
                                        axial, angle)
+        on_axis = np.zeros_like(local)
+        on_axis[:, 2] = np.clip(local[:, 2], -geom.size[1], geom.size[1])
+        normals = (local - on_axis) / np.linalg.norm(local - on_axis, axis=1, keepdims=True)
     elif geom.kind == "box":
         rot = quat_to_matrix(geom.quat)
         local = box_face_points(geom.size, rot.T @ palmar, region["extent_u"], region["extent_v"], lattice)
+        face = rot.T @ palmar
+        axis = int(np.argmax(np.abs(face)))
+        normals = np.zeros_like(local)
+        normals[:, axis] = np.sign(face[axis])
     else:
         raise MultigraspError(f"contact region {region['name']} is on a {geom.kind}: use a capsule or box geom")
-    return local @ rot.T + geom.pos
+    return local @ rot.T + geom.pos, normals @ rot.T
 
 
 def _read_yaml(path: Path, key: str) -> list:
@@ -111,7 +120,7 @@ def load_contact_candidates(spec: HandSpec, assets_dir: Path, points_per_region:
     """The contact candidates: ``points_per_region`` points on each region of contact_regions.yaml."""
     path = assets_dir / REGIONS_FILE
     geoms = {g.name: g for g in spec.collision_geoms}
-    names, links, points = [], [], []
+    names, links, points, normals = [], [], [], []
     for region in _read_yaml(path, "regions"):
         geom = geoms.get(region.get("geom"))
         if geom is None or geom.body != region.get("link"):
@@ -119,8 +128,11 @@ def load_contact_candidates(spec: HandSpec, assets_dir: Path, points_per_region:
                                   f"{region.get('link')}, which the hand does not have: fix the file")
         names += [region["name"]] * points_per_region
         links += [region["link"]] * points_per_region
-        points.append(region_points(region, geom, points_per_region))
-    return LinkPoints(names=names, link_names=links, points=np.concatenate(points, axis=0))
+        region_pts, region_normals = region_points(region, geom, points_per_region)
+        points.append(region_pts)
+        normals.append(region_normals)
+    return LinkPoints(names=names, link_names=links, points=np.concatenate(points, axis=0),
+                      normals=np.concatenate(normals, axis=0))
 
 
 def load_keypoints(spec: HandSpec, assets_dir: Path) -> LinkPoints:

@@ -13,10 +13,12 @@ every named term), :mod:`~.optimizer` (:class:`Annealer` with ``try_step`` / ``a
 from components.synthesis.config import SynthesisConfig
 from components.synthesis.energy import (
     GraspProblem,
+    contact_alignment_energy,
     contact_distance_energy,
     energy,
     energy_and_grad,
     force_closure_error,
+    friction_tilted_forces,
     hand_points_in_objects,
     joint_limit_energy,
     object_points_in_hand,
@@ -40,6 +42,7 @@ __all__ = [
     "SceneObjects",
     "SynthesisConfig",
     "SynthesisResult",
+    "contact_alignment_energy",
     "contact_distance_energy",
     "count_reasons",
     "energy",
@@ -47,6 +50,7 @@ __all__ = [
     "filter_checks",
     "filter_grasps",
     "force_closure_error",
+    "friction_tilted_forces",
     "hand_points_in_objects",
     "initial_poses",
     "joint_limit_energy",

@@ -25,6 +25,10 @@ class SynthesisConfig(Section):
     w_dist: float = Field(10.0, ge=0.0, description="Weight of the contact-distance energy E_dist during MALA (official: 10).")
     w_pen: float = Field(10.0, ge=0.0, description="Weight of the penetration energy E_pen (official: 10).")
     w_prior: float = Field(10.0, ge=0.0, description="Weight of the joint-limit prior E_prior (official: 10).")
+    w_align: float = Field(
+        1.0, ge=0.0,
+        description="Weight of the contact alignment energy E_align (energy.contact_alignment_energy): the hand patch at "
+        "a contact must face the object.  The official release computes this term but leaves it out of E (= 0).")
     w_pen_object_points: float = Field(
         1.0, ge=0.0, description="Sub-weight in E_pen of object surface points inside the hand (sum of depths, m).")
     w_pen_hand_points: float = Field(
@@ -38,6 +42,11 @@ class SynthesisConfig(Section):
     fc_margin: float = Field(
         0.2, ge=0.0,
         description="E_fc per object = relu(|G n|^2 - fc_margin): force-closure errors below this are not penalised (official: 0.2).")
+    fc_friction: float = Field(
+        0.5, ge=0.0,
+        description="Friction coefficient of E_fc: each unit contact force may tilt inside its Coulomb cone to cancel the "
+        "net force (energy.friction_tilted_forces).  0 = the official frictionless form, under which three contacts "
+        "on a box's faces can never reach force closure; 0.5 matches the Q1 metric's metrics.friction_coefficient.")
     fc_normalize_by_radius: bool = Field(
         True,
         description="Lever arms x in G = [I; [x]x] are measured from the object's centre and divided by its radius, so "
@@ -80,6 +89,18 @@ class SynthesisConfig(Section):
         description="Fraction of switches that stay within the contact's hand region (slide along the link); the others "
         "jump to any region. The official release instead optimises continuous weights of each contact over its region's "
         "patch; this discrete slide plays that role for point candidates.")
+    contact_distinct_fingers: bool = Field(
+        True,
+        description="The contacts of one object sit on different fingers (the palm counts as one): contacts on one "
+        "link push along nearly the same normal and cannot make force closure, so such assignments are never "
+        "proposed.  Fingers may still touch several objects.")
+    contact_switch_guided_probability: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="Fraction of the non-local switches drawn with probability proportional to "
+        "exp(-|d_O(candidate)| / contact_switch_guide_scale_m), favouring hand points already near the object "
+        "(a data-driven proposal; 0 = the official uniform draw).")
+    contact_switch_guide_scale_m: float = Field(
+        0.01, gt=0.0, description="Distance scale (m) of the guided contact switches (see above).")
     rmsprop_decay: float = Field(
         0.98, ge=0.0, lt=1.0,
         description="EMA decay of the squared gradient (per parameter, averaged over the batch) that preconditions the step, as in DexGraspNet.")
@@ -118,8 +139,10 @@ class SynthesisConfig(Section):
         60.0, ge=0.0, le=90.0,
         description="Approach directions are uniform on the spherical cap above the objects within this angle of +z.")
     init_distance_min_m: float = Field(
-        0.01, ge=0.0, description="Palm centre starts this far (at least) outside the objects' bounding sphere.")
-    init_distance_max_m: float = Field(0.04, ge=0.0, description="...and at most this far.")
+        0.01, ge=-0.1,
+        description="Palm centre starts this far (at least) outside the objects' bounding sphere (negative: inside it, "
+        "which the bounding sphere of several objects leaves room for).")
+    init_distance_max_m: float = Field(0.04, ge=-0.1, description="...and at most this far.")
     init_jitter_deg: float = Field(
         10.0, ge=0.0, description="Standard deviation of a random rotation applied to the palm after aiming it at the objects.")
     init_joint_fraction: float = Field(

@@ -34,23 +34,49 @@ from components.synthesis.scene_objects import SceneObjects
 #: cylinder (r = 6.9 cm) and the wrist capsule are too large to slip between object surface samples,
 #: and object points inside them are already caught by the exact hand SDF (E_pen^obj-pts).
 LARGE_HAND_GEOMS = ("C_forearm", "C_wrist")
+#: Key of the (B, K, 3) contact candidates in the dict returned by :func:`energy` (not an energy term).
+CANDIDATE_POINTS = "candidate_points"
 
 
 # ============================================================================ the energy's terms
-def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length: Tensor, margin: float) -> Tensor:
+def friction_tilted_forces(normals: Tensor, friction: float) -> Tensor:
+    """Unit contact forces tilted inside their friction cones to cancel the net force (one projection step):
+
+        r = sum_i n_i,   t_i = -(I - n_i n_i^T) r / C,   t_i <- t_i * min(1, mu / |t_i|),   f_i = n_i + t_i,
+
+    i.e. each contact takes its share of the residual force along its tangent plane, at most mu times its
+    normal force (Coulomb).  mu = 0 returns the normals (the official frictionless E_fc).
+    normals (B, C, 3) -> forces (B, C, 3)."""
+    if friction <= 0.0:
+        return normals
+    residual = normals.sum(dim=1, keepdim=True)  # (B, 1, 3)
+    normal_part = (residual * normals).sum(-1, keepdim=True) * normals  # (B, C, 3)
+    tangent = -(residual - normal_part) / normals.shape[1]
+    norm = tangent.norm(dim=-1, keepdim=True)
+    scale = torch.clamp(friction / norm.clamp_min(1e-12), max=1.0)
+    return normals + tangent * scale
+
+
+def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length: Tensor, margin: float,
+                        friction: float = 0.0) -> Tensor:
     """Force-closure error of one object (paper Eq. multi-dfc-energy, E_FC; DFC, Liu et al. 2021, Eq. 8b):
 
-        E_fc = relu(|G n|^2 - margin),   G = [ I_3  ...  I_3 ; [x_1]x ... [x_C]x ]  (6 x 3C),
-        |G n|^2 = |sum_i n_i|^2 + |sum_i x_i x n_i|^2,
+        E_fc = relu(|G f|^2 - margin),   G = [ I_3  ...  I_3 ; [x_1]x ... [x_C]x ]  (6 x 3C),
+        |G f|^2 = |sum_i f_i|^2 + |sum_i x_i x f_i|^2,
 
-    with n_i the object's outward unit normal at contact i and x_i = (c_i - centre) / length its lever
-    arm (length = the object's radius, or 1 m for the official raw coordinates).  Zero when the unit
-    contact forces along the normals balance in force and torque (up to ``margin``).
+    with f_i the contact force of unit normal component -- the object's outward unit normal n_i at contact
+    i, tilted inside its friction cone of coefficient ``friction`` by :func:`friction_tilted_forces`
+    (f_i = n_i when ``friction`` = 0, the official frictionless form) -- and x_i = (c_i - centre) / length
+    its lever arm (length = the object's radius, or 1 m for the official raw coordinates).  Zero when
+    the forces balance in force and torque (up to ``margin``).  Without friction three contacts on a
+    box's faces can never balance (three axis-aligned unit vectors never sum to zero); with mu = 0.5 a
+    pinch plus a third face contact does.
     points, normals (B, C, 3), centre (3,), length () -> (B,).
     """
     lever = (points - centre) / length  # (B, C, 3)
-    force = normals.sum(dim=1)  # (B, 3)
-    torque = torch.cross(lever, normals, dim=-1).sum(dim=1)  # (B, 3)
+    forces = friction_tilted_forces(normals, friction)
+    force = forces.sum(dim=1)  # (B, 3)
+    torque = torch.cross(lever, forces, dim=-1).sum(dim=1)  # (B, 3)
     return torch.relu((force * force).sum(-1) + (torque * torque).sum(-1) - margin)
 
 
@@ -58,6 +84,15 @@ def contact_distance_energy(signed_distance: Tensor) -> Tensor:
     """Contact distance of one object (DESIGN §5.1, E_dist):  E_dist = sum_i |d_O(c_i)|  (m), the distance
     of each assigned hand contact point to the object's surface.   (B, C) -> (B,)."""
     return signed_distance.abs().sum(-1)
+
+
+def contact_alignment_energy(hand_normals: Tensor, object_normals: Tensor) -> Tensor:
+    """Contact alignment of one object (the official release's ``normal_alignment``, there unweighted):
+        E_align = sum_i (1 + n_H(c_i) . n_O(c_i)),
+    n_H the hand surface's outward normal at contact candidate i and n_O the object's outward normal there:
+    0 when the hand touches the object with the patch's face (opposed normals), 2 when the patch faces away
+    -- pulling such a contact onto the surface drives the finger through the object.   (B, C, 3) x2 -> (B,)."""
+    return (1.0 + (hand_normals * object_normals).sum(-1)).sum(-1)
 
 
 def object_points_in_hand(hand_signed_distance: Tensor) -> Tensor:
@@ -116,6 +151,15 @@ class GraspProblem:
                    hand_surface=HandSurface(hand, cfg.hand_point_spacing_m, exclude=LARGE_HAND_GEOMS),
                    object_points=objects.surface_points(cfg.object_surface_points, cfg.seed_surface_points),
                    lever_lengths=lengths)
+
+    @property
+    def finger_of(self) -> Tensor:
+        """Finger of every contact candidate (K,) long: regions share a finger when their names share the
+        prefix before '_' (``ff_distal`` -> ``ff``), the palm's regions all count as ``palm``."""
+        names = [n.split("_")[0] for n in self.hand.region_names]
+        fingers = list(dict.fromkeys(names))
+        region_finger = torch.tensor([fingers.index(n) for n in names], device=self.hand.contact_region_of.device)
+        return region_finger[self.hand.contact_region_of]
 
     @property
     def n_candidates(self) -> int:
@@ -195,7 +239,9 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
     ``pen_self``, ``pen_table`` ((B,)); diagnostics (detached, m): ``contact_distance_max``,
     ``penetration_depth_objects``, ``penetration_depth_table``, ``penetration_depth_self``,
-    ``penetration_depth_max``.
+    ``penetration_depth_max``, ``contact_distance_per_object`` (mean |d| of each object's contacts, (B, n_obj));
+    and ``candidate_points`` (B, K, 3): every contact candidate in the world (for guided contact switches;
+    not an energy term, dropped from results).
     """
     cfg, hand, objects = problem.cfg, problem.hand, problem.objects
     w_dist = cfg.w_dist if w_dist is None else w_dist
@@ -207,15 +253,19 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     prims = hand.collision.pose(frames)  # palm frame
 
     # contacts: E_fc and E_dist per object
-    contact_points = gather_contacts(hand.contact_candidates(p, R, q), contacts)  # (B, n_obj, C, 3)
-    fc, dist, contact_dist = [], [], []
+    candidate_points, candidate_normals = hand.contact_candidates_and_normals(p, R, q)  # (B, K, 3) x2
+    contact_points = gather_contacts(candidate_points, contacts)  # (B, n_obj, C, 3)
+    contact_normals = gather_contacts(candidate_normals, contacts)
+    fc, dist, align, contact_dist = [], [], [], []
     for j in range(objects.n_objects):
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
         fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
-                                      cfg.fc_margin))
+                                      cfg.fc_margin, cfg.fc_friction))
         dist.append(contact_distance_energy(d))
+        align.append(contact_alignment_energy(contact_normals[:, j], n))
         contact_dist.append(d.detach().abs())
     fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
+    align_per_object = torch.stack(align, dim=-1)
 
     # penetration (only points found inside are re-evaluated with autograd: object_points_hand_distances,
     # hand_points_object_distances)
@@ -235,7 +285,9 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 
     prior = joint_limit_energy(hand, q)
     fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
-    total = cfg.w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
+    align_total = align_per_object.sum(-1)
+    total = (cfg.w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
+             + cfg.w_align * align_total)
 
     with torch.no_grad():
         depth_objects = torch.maximum(torch.relu(-d_hand.reshape(batch, n_obj, n_pts)).amax(-1),
@@ -243,7 +295,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         depth_table = torch.relu(objects.table_height - lowest).amax(-1)
         depth_self = torch.relu(-pairs).amax(-1) if pairs.shape[1] else torch.zeros_like(depth_table)
         terms = {
-            "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior,
+            "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total,
             "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
             "pen_object_points": pen_object_points, "pen_hand_points": pen_hand_points,
             "pen_self": pen_self, "pen_table": pen_table,
@@ -251,6 +303,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
             "penetration_depth_objects": depth_objects, "penetration_depth_table": depth_table,
             "penetration_depth_self": depth_self,
             "penetration_depth_max": torch.maximum(torch.maximum(depth_objects.amax(-1), depth_table), depth_self),
+            "contact_distance_per_object": torch.stack(contact_dist, dim=1).mean(-1),
+            CANDIDATE_POINTS: candidate_points.detach(),
         }
     return total, terms
 

@@ -12,7 +12,8 @@ Every candidate starts with its palm facing the objects from above the table:
 4. actuated joints q = q_open + f (q_u - q_open) with q_u uniform in the joint limits and f =
    ``init_joint_fraction`` (the official release draws the lower half of each range, which bends
    symmetric joints such as the abductions to one side), coupled J0 from J1;
-5. contacts: ``contacts_per_object`` distinct candidate indices per object, all distinct in the row.
+5. contacts: ``contacts_per_object`` distinct candidate indices per object, all distinct in the row and,
+   with ``contact_distinct_fingers``, the contacts of one object on different fingers.
 """
 
 from __future__ import annotations
@@ -108,4 +109,11 @@ def initial_poses(problem: GraspProblem, generator: torch.Generator) -> tuple[Te
     q = initial_joint_angles(hand, batch, cfg.init_joint_fraction, generator)
     contacts = random_distinct_contacts(batch, objects.n_objects, cfg.contacts_per_object, problem.n_candidates,
                                         generator, hand.device)
+    if cfg.contact_distinct_fingers:  # redraw every contact uniformly among those on a free finger
+        from components.synthesis.optimizer import switch_contacts
+
+        redraw = cfg.model_copy(update={"contact_switch_mode": "per_contact", "contact_switch_probability": 1.0,
+                                        "contact_switch_local_probability": 0.0,
+                                        "contact_switch_guided_probability": 0.0})
+        contacts = switch_contacts(contacts, hand.contact_region_of, redraw, generator, finger_of=problem.finger_of)
     return pack(p, rot, q), contacts

@@ -57,16 +57,25 @@ def temperature_at(t: int, cfg: SynthesisConfig) -> float:
     return cfg.temperature * cfg.temperature_decay ** (t // period)
 
 
-def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator) -> Tensor:
+def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator,
+                    finger_of: Optional[Tensor] = None, log_weights: Optional[Tensor] = None) -> Tensor:
     """Stochastic contact switching (module docstring, step 2).
 
     Which contacts switch: with ``contact_switch_mode='per_step'``, with probability p a row switches one
     uniformly chosen contact of every object; with ``'per_contact'`` each contact switches independently
-    with probability p (p = ``contact_switch_probability``).  Where to: with probability
-    ``contact_switch_local_probability`` a candidate of the same hand region (the contact slides along
-    its link), otherwise any candidate; in both cases uniformly among the candidates no contact of the row
-    uses (itself included, so a switch always changes it).  A local switch in a region with no free
-    candidate falls back to any candidate.   contacts (B, n_obj, C), region_of (K,) -> (B, n_obj, C).
+    with probability p (p = ``contact_switch_probability``).  Where to, among the *allowed* candidates --
+    used by no contact of the row (itself included, so a switch always changes it) and, when ``finger_of``
+    (K,) is given, on no finger already touching the same object through another of its contacts:
+
+    * with probability ``contact_switch_local_probability``, uniformly in the contact's own hand region
+      (it slides along its link; falls back to the next rule when the region has no allowed candidate);
+    * else, when ``log_weights`` (B, n_obj, K) is given, with probability
+      ``contact_switch_guided_probability``, candidate k with probability proportional to
+      exp(log_weights[b, j, k]) (the guided proposal of :meth:`Annealer.try_step`);
+    * else uniformly.
+
+    Draws use the exponential race:  argmin_k E_k / w_k  with E_k ~ Exp(1) picks k with probability
+    w_k / sum(w).   contacts (B, n_obj, C), region_of (K,) -> (B, n_obj, C).
     """
     batch, n_obj, per_object = contacts.shape
     n_candidates = region_of.shape[0]
@@ -83,18 +92,31 @@ def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, g
         which = torch.randint(per_object, (batch, n_obj), generator=generator, device=generator.device).to(flat.device)
         switch = row & torch.nn.functional.one_hot(which, per_object).bool().reshape(batch, n_slots)
     local = uniform(batch, n_slots) < cfg.contact_switch_local_probability  # (B, S)
+    guided = uniform(batch, n_slots) < cfg.contact_switch_guided_probability  # (B, S)
     for slot in range(n_slots):
         rows = switch[:, slot].nonzero().squeeze(-1)  # (R,)
         if rows.numel() == 0:
             continue
-        used = torch.zeros(rows.numel(), n_candidates, dtype=torch.bool, device=flat.device)
-        used.scatter_(1, flat[rows], True)  # (R, K)
+        obj = slot // per_object
+        allowed = torch.ones(rows.numel(), n_candidates, dtype=torch.bool, device=flat.device)
+        allowed.scatter_(1, flat[rows], False)  # (R, K): no candidate used in the row
+        if finger_of is not None:
+            siblings = [obj * per_object + c for c in range(per_object) if obj * per_object + c != slot]
+            for other in siblings:  # no finger already on this object
+                allowed &= finger_of.unsqueeze(0) != finger_of[flat[rows, other]].unsqueeze(1)
         same_region = region_of.unsqueeze(0) == region_of[flat[rows, slot]].unsqueeze(1)  # (R, K)
-        local_ok = ~used & same_region
+        local_ok = allowed & same_region
         use_local = local[rows, slot] & local_ok.any(1)  # (R,)
-        allowed = torch.where(use_local.unsqueeze(1), local_ok, ~used)
-        keys = uniform(rows.numel(), n_candidates).masked_fill(~allowed, float("inf"))
-        flat[rows, slot] = keys.argmin(1)  # uniform among the allowed candidates
+        allowed = torch.where(use_local.unsqueeze(1), local_ok, allowed)
+        # a row with no allowed candidate at all (only with very few candidates) keeps its contact
+        stuck = ~allowed.any(1)
+        race = -torch.log(uniform(rows.numel(), n_candidates).clamp_min(torch.finfo(torch.float32).tiny))  # Exp(1)
+        keys = race.log()
+        if log_weights is not None:
+            use_guide = (guided[rows, slot] & ~use_local).unsqueeze(1)
+            keys = keys - torch.where(use_guide, log_weights[rows, obj].to(keys.dtype), torch.zeros_like(keys))
+        keys = keys.masked_fill(~allowed, float("inf"))
+        flat[rows, slot] = torch.where(stuck, flat[rows, slot], keys.argmin(1))
     return flat.reshape(contacts.shape)
 
 
@@ -138,9 +160,20 @@ class Annealer:
         noise = torch.randn(state.x.shape, generator=self.generator, dtype=state.x.dtype,
                             device=self.generator.device).to(state.x.device)
         x_new = state.x - s * self.scale * precond + s * self.scale * cfg.langevin_noise * noise
-        contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator)
+        contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator,
+                                       finger_of=self.problem.finger_of if cfg.contact_distinct_fingers else None,
+                                       log_weights=self._guide_log_weights())
         self._proposal = (x_new, contacts_new)
         return x_new, contacts_new
+
+    def _guide_log_weights(self) -> Optional[Tensor]:
+        """log w[b, j, k] = -|d_j(candidate k of row b)| / ``contact_switch_guide_scale_m``: guided switches favour
+        hand candidates already near the object (None when guided switches are off).  (B, n_obj, K)."""
+        if self.cfg.contact_switch_guided_probability <= 0.0 or self.cfg.contact_switch_probability <= 0.0:
+            return None
+        points = self.state.terms["candidate_points"]  # (B, K, 3) of the current pose
+        distance = self.problem.objects.sdf(points).abs()  # (B, K, n_obj)
+        return -(distance / self.cfg.contact_switch_guide_scale_m).transpose(1, 2)
 
     def accept_step(self) -> Tensor:
         """Evaluate the proposal, apply the Metropolis test at T_t (step 3), advance t.  -> accept mask (B,)."""

@@ -20,7 +20,7 @@ from torch import Tensor
 from components.hand import HandModel
 from components.objects import ObjectLibrary, Scene
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import GraspProblem, energy_and_grad
+from components.synthesis.energy import CANDIDATE_POINTS, GraspProblem, energy_and_grad, gather_contacts
 from components.synthesis.filtering import count_reasons, filter_grasps
 from components.synthesis.initializations import initial_poses
 from components.synthesis.optimizer import ProgressFn, refine, run_mala
@@ -34,7 +34,8 @@ class SynthesisResult:
 
     ``p`` (B, 3), ``R`` (B, 3, 3): palm pose in the world; ``q`` (B, 22): joint angles (J0 coupled when
     ``couple_distal_joints``); ``contacts`` (B, n_obj, C): candidate indices; ``contact_regions``
-    (B, n_obj, C): their region indices (``HandModel.region_names``); ``energy`` (B,): E with the MALA
+    (B, n_obj, C): their region indices (``HandModel.region_names``); ``contact_points`` (B, n_obj, C, 3):
+    their world positions; ``energy`` (B,): E with the MALA
     weights; ``terms``: every term of :func:`components.synthesis.energy.energy` per row; ``accepted`` (B,);
     ``reasons``: per row ``"accepted"`` or the first failed filter criterion; ``stats``: timings and rates.
     """
@@ -46,6 +47,7 @@ class SynthesisResult:
     q: Tensor
     contacts: Tensor
     contact_regions: Tensor
+    contact_points: Tensor
     energy: Tensor
     terms: dict
     accepted: Tensor
@@ -62,7 +64,7 @@ class SynthesisResult:
     def to_numpy(self) -> dict[str, np.ndarray]:
         """Every tensor as a numpy array (for ``np.savez``); terms prefixed with ``term_``."""
         arrays = {k: getattr(self, k).detach().cpu().numpy()
-                  for k in ("p", "R", "q", "contacts", "contact_regions", "energy", "accepted")}
+                  for k in ("p", "R", "q", "contacts", "contact_regions", "contact_points", "energy", "accepted")}
         arrays.update({f"term_{k}": v.detach().cpu().numpy() for k, v in self.terms.items()})
         arrays["reasons"] = np.array(self.reasons)
         return arrays
@@ -83,11 +85,13 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
     state, mala_stats = run_mala(problem, x, contacts, generator, progress)
     x, refine_stats = refine(problem, state.x, state.contacts, progress)
     energy, _, terms = energy_and_grad(problem, x, state.contacts)
+    contact_points = gather_contacts(terms.pop(CANDIDATE_POINTS), state.contacts)  # (B, n_obj, C, 3)
     accepted, reasons = filter_grasps(terms, cfg)
     p, R, q = unpack(x)
     q = problem.effective_joints(q)
     stats = {**mala_stats, **refine_stats, "seconds": time.perf_counter() - start,
              "accept_rate": float(accepted.float().mean())}
     return SynthesisResult(scene=scene, object_names=list(objects.names), p=p, R=R, q=q, contacts=state.contacts,
-                           contact_regions=hand.contact_region_of[state.contacts], energy=energy, terms=terms,
+                           contact_regions=hand.contact_region_of[state.contacts], contact_points=contact_points,
+                           energy=energy, terms=terms,
                            accepted=accepted, reasons=reasons, stats=stats)
