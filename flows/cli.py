@@ -5,8 +5,11 @@
     multigrasp status --profile smoke           # done / partial / stale / corrupt / missing per stage
     multigrasp stages                           # the stage DAG
     multigrasp scenes --profile smoke           # only the scenes stage
+    multigrasp synthesize --profile smoke       # only the synthesize stage (scenes must be done)
+    multigrasp evaluate pregrasp --source synthetic   # Q1 / PN / Div table of the synthesised grasps
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp bench kinematics --json out.json # FK + distance timings
+    multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
 
 Every command that reads a config takes ``--profile``, ``--config FILE``, repeatable
 ``--set a.b=value``, ``--workdir``, ``--device`` and ``--runner``.
@@ -86,6 +89,22 @@ def build_parser() -> argparse.ArgumentParser:
                                     "settle them in PyBullet, save them and render a few to PNG (MLflow).")
     _config_args(sc)
 
+    sy = sub.add_parser("synthesize", help="run only the synthesize stage (grasps per scene, Q1 / PN, renders)",
+                        description="Synthesise multi-object pre-grasps for the scenes of the scenes stage (DFC "
+                                    "energy, annealed MALA with contact switching, Adam refinement, filter), "
+                                    "measure Q1 and PN of the accepted ones, write Parquet tables, statistics and "
+                                    "render grids (MLflow). The scenes stage must be done for the same config.")
+    _config_args(sy)
+
+    ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split)",
+                        description="Write an evaluation table to <workdir>/results/ (JSON + markdown) and log it "
+                                    "to its own MLflow run. `pregrasp --source synthetic` measures the grasps of "
+                                    "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo, Syn-train-pairs).")
+    ev.add_argument("target", choices=["pregrasp"], help="what to evaluate")
+    ev.add_argument("--source", choices=["synthetic"], required=True,
+                    help="where the pre-grasps come from: synthetic = the synthesize stage")
+    _config_args(ev)
+
     ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
                         description="Serve the MLflow UI for the work dir's store (or MLFLOW_TRACKING_URI) on "
                                     "127.0.0.1. Stop it with Ctrl-C.")
@@ -94,11 +113,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="speed benchmarks that write JSON (see benchmarks/)",
                            description="Run a benchmark and write its JSON (medians of several runs).")
-    bench.add_argument("name", choices=["kinematics"], help="which benchmark")
+    bench.add_argument("name", choices=["kinematics", "synthesis"], help="which benchmark")
     bench.add_argument("--json", type=Path, required=True, metavar="OUT", help="where to write the JSON result")
     bench.add_argument("--repeats", type=int, default=7, help="timed runs (median reported); default 7")
     bench.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     bench.add_argument("--device", choices=["cpu", "cuda"], default="cpu", help="torch device")
+    bench.add_argument("--steps-scale", type=float, default=1.0,
+                       help="synthesis: multiply the bench profile's MALA / refinement steps (e.g. 0.01 for a "
+                            "quick check); default 1")
     return parser
 
 
@@ -170,12 +192,30 @@ def _cmd_ui(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    from benchmarks.kinematics import run_kinematics_benchmark
+    if args.name == "synthesis":
+        from benchmarks.synthesis import run_synthesis_benchmark
 
-    result = run_kinematics_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
+        if args.steps_scale <= 0:
+            raise MultigraspError(f"--steps-scale must be > 0 (got {args.steps_scale}) — e.g. 0.01 for a quick check")
+        result = run_synthesis_benchmark(repeats=args.repeats, threads=args.threads, device=args.device,
+                                         steps_scale=args.steps_scale)
+    else:
+        from benchmarks.kinematics import run_kinematics_benchmark
+
+        result = run_kinematics_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from flows.evaluate import evaluate_pregrasp
+
+    cfg = _load(args)
+    report = evaluate_pregrasp(cfg, args.source)
+    print(report.markdown)
+    print(f"written: {report.json_path}  {report.markdown_path}")
     return 0
 
 
@@ -188,7 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui,
-                "bench": _cmd_bench, "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"])}
+                "bench": _cmd_bench, "evaluate": _cmd_evaluate,
+                "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
+                "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}
     try:
         return handlers[args.command](args)
     except MultigraspError as exc:

@@ -25,6 +25,7 @@ from components.errors import MultigraspError
 from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
 from tasks.scenes import ScenesStageConfig
+from tasks.synthesize import SynthesisStageConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
@@ -58,6 +59,8 @@ class PipelineConfig(Section):
     hand: HandConfig = Field(default_factory=HandConfig, description="Shadow Hand model.")
     objects: ObjectsConfig = Field(default_factory=ObjectsConfig, description="Object library and user meshes.")
     scenes: ScenesStageConfig = Field(default_factory=ScenesStageConfig, description="Tabletop scene stage.")
+    synthesis: SynthesisStageConfig = Field(default_factory=SynthesisStageConfig,
+                                            description="Grasp synthesis stage (optimiser, metrics, scenes, renders).")
 
     @field_validator("run")
     @classmethod

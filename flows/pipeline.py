@@ -16,15 +16,15 @@ from pathlib import Path
 from types import ModuleType
 
 from components.errors import MultigraspError
-from flows import scenes
+from flows import scenes, synthesize
 from flows.config import PipelineConfig
 from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
 from tasks.artifacts import Manifest, valid_manifest
 from tasks.preflight import validate_inputs
 from tasks.tracking import flatten
 
-STAGES: tuple[ModuleType, ...] = (scenes,)
-"""Stage modules in execution order (synthesis, generator, … are added by later issues)."""
+STAGES: tuple[ModuleType, ...] = (scenes, synthesize)
+"""Stage modules in execution order (generator, … are added by later issues)."""
 
 
 def stage_names() -> list[str]:

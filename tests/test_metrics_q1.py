@@ -118,3 +118,16 @@ def test_q1_grasps_is_invariant_to_moving_hand_and_objects_together(hand, librar
         values.append(float(q1[0]))
     assert values[0] > 0.0  # the curled fingers and the palm hold the sphere
     assert values[1] == pytest.approx(values[0], abs=1e-9)
+
+
+def test_contacts_without_a_defined_normal_are_skipped_not_fatal():
+    from components.metrics import MetricsConfig
+    from components.metrics.q1 import object_contacts
+
+    distances = np.array([0.001, -0.002, 0.0])
+    points = np.array([[0.02, 0.0, 0.0], [-0.018, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    normals = np.array([[2.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # last: zero gradient
+    surface, normal = object_contacts(distances, points, normals, MetricsConfig())
+    assert len(surface) == 2
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
+    assert np.allclose(surface[0], [0.019, 0.0, 0.0])

@@ -93,12 +93,15 @@ def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarr
                     cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray]:
     """The contacts of one grasp on one object: hand samples with d < ``contact_distance_m`` projected onto
     the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample).
+    Samples whose SDF normal is undefined (norm <= 0.5) are skipped; the others are renormalised.
     distances (M,), points, normals (M, 3) -> (contact points (C, 3), normals (C, 3))."""
-    touching = np.flatnonzero(distances < cfg.contact_distance_m)
+    norms = np.linalg.norm(normals, axis=1)
+    # samples with no defined normal (zero SDF gradient, e.g. deep inside a grid SDF) cannot push: skipped
+    touching = np.flatnonzero((distances < cfg.contact_distance_m) & (norms > 0.5))
     if len(touching) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    surface = points[touching] - distances[touching, None] * normals[touching]
-    normal = normals[touching]
+    normal = normals[touching] / norms[touching, None]
+    surface = points[touching] - distances[touching, None] * normal
     if len(touching) > cfg.q1_max_contacts:
         chosen = farthest_point_indices(surface, cfg.q1_max_contacts, int(np.argmin(np.abs(distances[touching]))))
         surface, normal = surface[chosen], normal[chosen]

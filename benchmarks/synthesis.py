@@ -1,0 +1,101 @@
+"""Benchmark: multi-object grasp synthesis throughput (``multigrasp bench synthesis``).
+
+Workload: one fixed dual-object scene — cube + cylinder placed by
+:func:`components.objects.sample_scene` with ``numpy`` seed :data:`SEED` — and one call of
+:func:`components.synthesis.synthesize` with :data:`BATCH` = 256 candidates and the ``bench``
+profile's optimiser (its MALA / refinement step counts, times ``steps_scale``; 1 = as in the
+profile).  Reported:
+
+* ``accepted_per_s`` — accepted grasps per second of that call, ``accept_rate``;
+* ``step_ms`` — median wall time of one annealed MALA step (energy + gradient, proposal,
+  Metropolis test, contact switching) at B = 256, measured from the optimiser's progress
+  callback over intervals of :data:`PROGRESS_EVERY` steps (fewer on very short runs), so it
+  holds whatever the inside of the optimiser becomes;
+* ``fk_ms`` — median FK of all links at B = 256 over ``repeats`` timed runs after a warm-up;
+* ``seconds`` — the whole call (initialisation, MALA, refinement, filter).
+
+The synthesis itself runs once (it is long); the step and FK figures are medians.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+BATCH = 256
+BENCH_OBJECTS = ("cube", "cylinder")
+SEED = 0
+PROGRESS_EVERY = 10
+#: Profile whose optimiser settings (step counts, weights, schedule) the benchmark uses.
+PROFILE = "bench"
+
+
+def _median_ms(fn, repeats: int, sync) -> float:
+    fn()
+    sync()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        sync()
+        times.append((time.perf_counter() - start) * 1000.0)
+    return statistics.median(times)
+
+
+def bench_optimizer(steps_scale: float):
+    """The bench profile's optimiser at B = 256 with its step counts scaled (at least 1 MALA step)."""
+    from flows.config import load_config
+
+    cfg = load_config(PROFILE).synthesis.optimizer
+    update = {"batch_size": BATCH, "mala_steps": max(1, round(cfg.mala_steps * steps_scale)),
+              "refine_steps": max(0, round(cfg.refine_steps * steps_scale))}
+    if "progress_every" in type(cfg).model_fields:
+        update["progress_every"] = max(1, min(PROGRESS_EVERY, update["mala_steps"] // 4))  # >= 3 intervals
+    return cfg.model_copy(update=update)
+
+
+def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "cpu", steps_scale: float = 1.0) -> dict:
+    """Run the workload (module docstring); returns the JSON-able result."""
+    from components.hand import HandConfig, HandModel
+    from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
+    from components.synthesis import synthesize
+
+    if threads:
+        torch.set_num_threads(threads)
+    dev = torch.device(device)
+    sync = (lambda: torch.cuda.synchronize()) if dev.type == "cuda" else (lambda: None)
+    hand = HandModel(HandConfig(), device=dev, dtype=torch.float32)
+    cfg = bench_optimizer(steps_scale)
+    ticks: list[tuple[int, float]] = []
+
+    def progress(step: int, total: int, info: dict) -> None:
+        if info.get("stage") == "mala":
+            sync()
+            ticks.append((step, time.perf_counter()))
+
+    with tempfile.TemporaryDirectory() as tmp:
+        library = ObjectLibrary(ObjectsConfig(), cache_dir=Path(tmp))
+        scene = sample_scene(library, list(BENCH_OBJECTS), np.random.default_rng(SEED), ScenesConfig())
+        start = time.perf_counter()
+        result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(SEED), progress)
+        sync()
+        seconds = time.perf_counter() - start
+
+    step_ms = [(t1 - t0) * 1000.0 / (s1 - s0) for (s0, t0), (s1, t1) in zip(ticks, ticks[1:]) if s1 > s0]
+    q = hand.sample_joint_angles(BATCH, generator=torch.Generator().manual_seed(SEED)).to(dev)
+    with torch.no_grad():
+        fk_ms = _median_ms(lambda: hand.forward_kinematics(q), repeats, sync)
+    accepted = int(result.accepted.sum())
+    return {"accepted_per_s": round(accepted / seconds, 4), "accept_rate": round(result.accept_rate, 4),
+            "accepted": accepted, "step_ms": round(statistics.median(step_ms), 3) if step_ms else None,
+            "fk_ms": round(fk_ms, 3), "seconds": round(seconds, 2), "threads": torch.get_num_threads(),
+            "device": str(dev), "repeats": repeats, "torch": torch.__version__,
+            "workload": {"objects": list(BENCH_OBJECTS), "scene": scene.to_dict(), "scene_seed": SEED,
+                         "batch": BATCH, "profile": PROFILE, "steps_scale": steps_scale,
+                         "mala_steps": cfg.mala_steps, "refine_steps": cfg.refine_steps,
+                         "reasons": result.reason_counts()}}

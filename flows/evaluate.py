@@ -1,0 +1,165 @@
+"""Evaluation commands: result tables written to ``<workdir>/results/`` and logged to MLflow.
+
+``multigrasp evaluate pregrasp --source synthetic`` — pre-grasp quality of the ``synthesize``
+stage's accepted grasps per evaluation setting (paper Table "pre-grasp quality", DESIGN §6):
+
+* ``q1``   mean Ferrari–Canny Q1 of the accepted grasps (min over objects; higher is better),
+* ``pn_mm`` mean maximal penetration depth (mm; lower is better),
+* ``div_deg`` Div = mean per-joint standard deviation of q over the accepted grasps (deg),
+* ``accept_rate`` accepted / synthesised candidates, ``n`` the number of accepted grasps.
+
+Settings: ``Syn-Pl``, ``Syn-Com``, ``Syn-Geo`` = every combination of that scene split (singles and
+pairs, as the splits define them), plus ``Syn-train-pairs`` = the dual-object combinations of the
+``train`` split (the data the generator learns from).  A setting without accepted grasps gives a
+row with ``n = 0`` and nulls.  Other sources (``generated``, issue 4) plug into :data:`SOURCES`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from components.errors import MultigraspError
+from flows.config import PipelineConfig
+from tasks.artifacts import atomic_write_json, atomic_write_text
+
+#: The paper's Syn row (Syn-Pl, MultiGrasp Table "pre-grasp quality"; DESIGN §6), for comparison only.
+PAPER_SYN_ROW = {"setting": "Syn (paper, Pl)", "q1": 0.30, "pn_mm": 1.64, "div_deg": 8.54}
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One row of the table: which scene split, restricted to combinations of which sizes (None = all)."""
+
+    name: str
+    split: str
+    n_objects: int | None = None
+
+
+SYNTHETIC_SETTINGS = (Setting("Syn-Pl", "Pl"), Setting("Syn-Com", "Com"), Setting("Syn-Geo", "Geo"),
+                      Setting("Syn-train-pairs", "train", 2))
+
+
+@dataclass
+class PregraspReport:
+    rows: list[dict[str, Any]]
+    json_path: Path
+    markdown_path: Path
+    markdown: str
+
+
+# --------------------------------------------------------------------------- metrics of a setting
+
+
+def setting_row(setting: Setting, accepted, candidates: int) -> dict[str, Any]:
+    """Mean Q1 / PN, Div and accept rate of one setting from its accepted rows (a pandas frame)."""
+    import numpy as np
+    import torch
+
+    from components.metrics import joint_diversity_deg
+
+    n = int(len(accepted))
+    row: dict[str, Any] = {"setting": setting.name, "split": setting.split, "n": n, "candidates": int(candidates),
+                           "accept_rate": n / candidates if candidates else None,
+                           "q1": None, "pn_mm": None, "div_deg": None}
+    if n:
+        q1 = accepted["q1"].to_numpy(dtype=float)
+        pn = accepted["pn_mm"].to_numpy(dtype=float)
+        row["q1"] = float(np.nanmean(q1)) if np.isfinite(q1).any() else None
+        row["pn_mm"] = float(np.nanmean(pn)) if np.isfinite(pn).any() else None
+        q = torch.as_tensor(np.stack([np.asarray(v, dtype=float) for v in accepted["q"]]))  # (n, 22)
+        row["div_deg"] = joint_diversity_deg(q)
+    return row
+
+
+def _in_setting(frame, setting: Setting):
+    mask = frame["split"] == setting.split
+    if setting.n_objects is not None:
+        mask &= frame["combination"].str.count(r"\+") + 1 == setting.n_objects
+    return frame[mask]
+
+
+def synthetic_rows(cfg: PipelineConfig) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """Rows of the synthesize stage's output for this config (module docstring) and provenance tags."""
+    import pyarrow.parquet as pq
+
+    from flows.pipeline import stage_output
+
+    manifest = stage_output(cfg, "synthesize")
+    if manifest is None:
+        raise MultigraspError("evaluate pregrasp --source synthetic needs the synthesize stage for this config — "
+                              "run `multigrasp run --until synthesize` first (same --profile / --config / --set)")
+    accepted = pq.read_table(manifest.path("grasps"), columns=_present(manifest.path("grasps"),
+                                                                       ["split", "combination", "q1", "pn_mm", "q"])
+                             ).to_pandas()
+    rejected = pq.read_table(manifest.path("rejected"), columns=["split", "combination"]).to_pandas()
+    rows = []
+    for setting in SYNTHETIC_SETTINGS:
+        mine = _in_setting(accepted, setting)
+        candidates = len(mine) + len(_in_setting(rejected, setting))
+        rows.append(setting_row(setting, mine, candidates))
+    return rows, {"synthesize_manifest": str(Path(manifest.folder) / "manifest.json"),
+                  "synthesize_run": manifest.producer_run_id or ""}
+
+
+def _present(path: Path, wanted: list[str]) -> list[str]:
+    """Columns of ``wanted`` that the Parquet file has (an empty stage output has no ``q``)."""
+    import pyarrow.parquet as pq
+
+    names = set(pq.read_schema(path).names)
+    return [c for c in wanted if c in names]
+
+
+#: ``--source`` → rows builder (issue 4 adds ``generated``).
+SOURCES: dict[str, Callable[[PipelineConfig], tuple[list[dict[str, Any]], dict[str, str]]]] = {
+    "synthetic": synthetic_rows,
+}
+
+
+# --------------------------------------------------------------------------- the table
+
+
+def _fmt(value: Any, digits: int) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def pregrasp_markdown(rows: list[dict[str, Any]], source: str) -> str:
+    """The table of ``rows`` with the paper's Syn row for comparison."""
+    lines = [f"# Pre-grasp quality ({source})", "",
+             "| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) ↑ | accept rate | n |", "|---|---|---|---|---|---|"]
+    for row in rows:
+        rate = "–" if row["accept_rate"] is None else f"{100 * row['accept_rate']:.1f} %"
+        lines.append(f"| {row['setting']} | {_fmt(row['q1'], 3)} | {_fmt(row['pn_mm'], 2)} | "
+                     f"{_fmt(row['div_deg'], 2)} | {rate} | {row['n']} |")
+    paper = PAPER_SYN_ROW
+    lines.append(f"| {paper['setting']} | {paper['q1']:.2f} | {paper['pn_mm']:.2f} | {paper['div_deg']:.2f} | – | – |")
+    lines += ["", "Q1: mean over accepted grasps (min over objects). PN: mean maximal penetration. "
+                  "Div: mean per-joint std of the accepted q. `–`: no accepted grasp in that setting."]
+    return "\n".join(lines) + "\n"
+
+
+def evaluate_pregrasp(cfg: PipelineConfig, source: str) -> PregraspReport:
+    """Write ``results/pregrasp_<source>.json`` + ``.md`` and log both to their own MLflow run."""
+    from flows.runtime import make_tracker
+
+    if source not in SOURCES:
+        raise MultigraspError(f"unknown pre-grasp source '{source}' — choose one of {', '.join(SOURCES)}")
+    rows, tags = SOURCES[source](cfg)
+    results = cfg.run.workdir / "results"
+    json_path = atomic_write_json(results / f"pregrasp_{source}.json", {"rows": rows, "source": source,
+                                                                         "profile": cfg.profile, **tags})
+    markdown = pregrasp_markdown(rows, source)
+    markdown_path = atomic_write_text(results / f"pregrasp_{source}.md", markdown)
+
+    tracker = make_tracker(cfg)
+    run_id = tracker.start_run(f"evaluate:pregrasp:{source}", tags={"command": "evaluate", "evaluation": "pregrasp",
+                                                                     "source": source, "profile": cfg.profile, **tags})
+    metrics = {f"{row['setting']}/{key}": row[key] for row in rows
+               for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n") if row[key] is not None}
+    tracker.log_metrics(run_id, metrics)
+    tracker.log_artifact(run_id, json_path, "results")
+    tracker.log_artifact(run_id, markdown_path, "results")
+    tracker.end_run(run_id)
+    return PregraspReport(rows=rows, json_path=json_path, markdown_path=markdown_path, markdown=markdown)

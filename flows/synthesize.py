@@ -1,0 +1,133 @@
+"""Stage flow ``synthesize``: multi-object pre-grasps for the settled scenes (paper §Preliminaries)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from prefect import flow
+
+from flows.config import PipelineConfig, section_digest
+from flows.runtime import StageProgress, StageResult, make_console, make_task_runner, make_tracker, wait_units
+from tasks.artifacts import Manifest, code_version, digest, upstream_hashes, valid_manifest
+from tasks.synthesize import (MERGE_CODE_DIRS, SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_merge_task,
+                              synthesize_shard_task)
+from tasks.tracking import Tracker
+from tasks.units import UnitSpec, make_spec
+
+STAGE = "synthesize"
+UPSTREAM: tuple[str, ...] = ("scenes",)
+DESCRIPTION = "synthesise multi-object pre-grasps per scene (DFC energy, annealed MALA, refinement, filter), Q1 / PN"
+#: Console lines listing combinations with 0 accepted grasps (the rest are in report.md).
+MAX_ZERO_LINES = 8
+
+
+def selected_scenes(cfg: PipelineConfig, scenes: Manifest) -> list[dict[str, Any]]:
+    """Scene records of the configured splits, at most ``max_scenes_per_combination`` per combination."""
+    stage = cfg.synthesis
+    cap = stage.max_scenes_per_combination
+    picked = []
+    for record in read_scene_records(scenes):
+        if record["split"] in stage.splits and (cap == 0 or record["index"] < cap):
+            picked.append(record)
+    return picked
+
+
+def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None, tracking_uri: str | None = None
+               ) -> list[tuple[UnitSpec, list[dict[str, Any]]]]:
+    """Unit specs of the shards and the scene records each synthesises.
+
+    A shard's key covers the scene contents it reads (not the whole scenes manifest), the
+    synthesis / metrics / hand / objects config, ``run.seed`` and the component code.
+    """
+    records = selected_scenes(cfg, scenes)
+    size = cfg.synthesis.scenes_per_shard
+    code = code_version(*SYNTHESIS_CODE_DIRS)
+    base = section_digest(cfg, "hand", "objects", "synthesis.optimizer", "synthesis.metrics", "run.seed")
+    plan = []
+    for number, start in enumerate(range(0, len(records), size)):
+        chunk = records[start:start + size]
+        spec = make_spec(stage=STAGE, unit=f"shard-{number:03d}", section_digest=base,
+                         upstream={"scenes": digest(chunk)[:20]}, code=code, workdir=cfg.run.workdir,
+                         run_id=run_id, tracking_uri=tracking_uri)
+        plan.append((spec, chunk))
+    return plan
+
+
+def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None = None,
+               tracking_uri: str | None = None) -> UnitSpec:
+    """Spec of the merge unit, keyed by the shard manifests it combines."""
+    return make_spec(stage=STAGE, unit="merge",
+                     section_digest=section_digest(cfg, "synthesis.renders_per_combination", "synthesis.camera",
+                                                   "synthesis.histogram_bins", "hand", "objects",
+                                                   extra=cfg.tracking.renders),
+                     upstream=upstream_hashes((s.unit, s) for s in shards), code=code_version(*MERGE_CODE_DIRS),
+                     workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+
+
+def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:
+    """All unit specs whose keys can be known now (for ``multigrasp status``)."""
+    specs = [spec for spec, _ in shard_plan(cfg, upstream["scenes"])]
+    manifests = [valid_manifest(spec.folder) for spec in specs]
+    if all(m is not None for m in manifests):
+        specs.append(merge_spec(cfg, manifests))  # type: ignore[arg-type]
+    return specs
+
+
+@flow(name="synthesize", log_prints=False, validate_parameters=False)
+def synthesize_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
+    """Shards of synthesised grasps (fanned out), then merge + statistics + renders."""
+    tracker = make_tracker(cfg)
+    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    uri = tracker.tracking_uri
+    plan = shard_plan(cfg, upstream["scenes"], run_id, uri)
+    console = make_console()
+    scenes = sum(len(chunk) for _, chunk in plan)
+    console.print(f"[bold cyan]{STAGE}[/] {scenes} scene(s) x {cfg.synthesis.optimizer.batch_size} candidates "
+                  f"in {len(plan)} shard(s)")
+    progress = StageProgress(console, STAGE, total=len(plan) + 1)
+    futures = [synthesize_shard_task.submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand, cfg.run.seed,
+                                            cfg.run.device, cfg.run.torch_threads)
+               for spec, chunk in plan]
+    shards, cached = wait_units(futures, progress, run_id)
+    spec = merge_spec(cfg, shards, run_id, uri)
+    merged, merged_cached = wait_units(
+        [synthesize_merge_task.submit(spec, shards, cfg.synthesis, cfg.objects, cfg.hand, cfg.tracking.renders)],
+        progress, run_id)
+    manifest = merged[0]
+    print_report(console, manifest)
+    return StageResult(STAGE, manifest, executed=len(plan) + 1 - cached - merged_cached,
+                       cached=cached + merged_cached, seconds=0.0, run_id=run_id)
+
+
+def print_report(console, manifest: Manifest) -> None:
+    """Per-split lines and the combinations with 0 accepted grasps (with their rejection reasons)."""
+    for line in manifest.meta.get("split_lines", []):
+        console.print(f"[bold cyan]{STAGE}[/] {line}")
+    zero = manifest.meta.get("zero_accepted_lines", [])
+    for line in zero[:MAX_ZERO_LINES]:
+        console.print(f"[bold yellow]{STAGE}[/] {line}")
+    if len(zero) > MAX_ZERO_LINES:
+        console.print(f"[bold yellow]{STAGE}[/] … and {len(zero) - MAX_ZERO_LINES} more combination(s) with 0 "
+                      f"accepted — see {manifest.path('report')}")
+
+
+def log_stage(tracker: Tracker, result: StageResult) -> None:
+    """MLflow: stage metrics; stats, report, histograms and renders (only when computed here)."""
+    run_id, manifest = result.run_id, result.manifest
+    tracker.log_metrics(run_id, manifest.metrics)
+    if result.fully_cached:
+        return
+    for name in ("stats", "report", "energy_terms"):
+        if name in manifest.files:
+            tracker.log_artifact(run_id, manifest.path(name), "synthesis")
+    for name in sorted(manifest.files):
+        if name.startswith("render_"):
+            tracker.log_artifact(run_id, manifest.path(name), "renders")
+
+
+def runner_flow(cfg: PipelineConfig):
+    """The stage flow bound to the configured task runner."""
+    return synthesize_flow.with_options(task_runner=make_task_runner(cfg.run))
+
+
+__all__ = ["STAGE", "UPSTREAM", "DESCRIPTION", "planned_units", "runner_flow", "log_stage", "selected_scenes"]
