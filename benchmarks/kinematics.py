@@ -9,31 +9,19 @@ after one warm-up run.
 
 from __future__ import annotations
 
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from benchmarks.timing import median_ms
 
 BATCH = 1024
 POINTS_PER_OBJECT = 512
 BENCH_OBJECTS = ("cube", "cylinder")
 OBJECT_OFFSETS_M = ((-0.03, 0.0, 0.03), (0.03, 0.0, 0.03))
 SEED = 0
-
-
-def _median_ms(fn, repeats: int, sync) -> float:
-    fn()
-    sync()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        sync()
-        times.append((time.perf_counter() - start) * 1000.0)
-    return statistics.median(times)
 
 
 def run_kinematics_benchmark(repeats: int = 7, threads: int = 0, device: str = "cpu") -> dict:
@@ -59,8 +47,8 @@ def run_kinematics_benchmark(repeats: int = 7, threads: int = 0, device: str = "
     points = points.unsqueeze(0).expand(BATCH, -1, -1)  # (B, 1024, 3)
 
     with torch.no_grad():
-        fk_ms = _median_ms(lambda: hand.forward_kinematics(q), repeats, sync)
-        dist_ms = _median_ms(lambda: hand.signed_distance(points, p, rot, q), repeats, sync)
+        fk_ms = median_ms(lambda: hand.forward_kinematics(q), repeats, sync)
+        dist_ms = median_ms(lambda: hand.signed_distance(points, p, rot, q), repeats, sync)
     return {"fk_ms_1024": round(fk_ms, 3), "hand_object_distance_ms_1024": round(dist_ms, 3),
             "threads": torch.get_num_threads(), "device": str(dev), "repeats": repeats,
             "batch": BATCH, "points": int(points.shape[1]), "objects": list(BENCH_OBJECTS),

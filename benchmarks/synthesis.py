@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks.timing import median_ms
+
 BATCH = 256
 BENCH_OBJECTS = ("cube", "cylinder")
 SEED = 0
@@ -35,28 +37,15 @@ PROGRESS_EVERY = 10
 PROFILE = "bench"
 
 
-def _median_ms(fn, repeats: int, sync) -> float:
-    fn()
-    sync()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        sync()
-        times.append((time.perf_counter() - start) * 1000.0)
-    return statistics.median(times)
-
-
 def bench_optimizer(steps_scale: float):
     """The bench profile's optimiser at B = 256 with its step counts scaled (at least 1 MALA step)."""
     from flows.config import load_config
 
     cfg = load_config(PROFILE).synthesis.optimizer
-    update = {"batch_size": BATCH, "mala_steps": max(1, round(cfg.mala_steps * steps_scale)),
-              "refine_steps": max(0, round(cfg.refine_steps * steps_scale))}
-    if "progress_every" in type(cfg).model_fields:
-        update["progress_every"] = max(1, min(PROGRESS_EVERY, update["mala_steps"] // 4))  # >= 3 intervals
-    return cfg.model_copy(update=update)
+    mala_steps = max(1, round(cfg.mala_steps * steps_scale))
+    return cfg.model_copy(update={"batch_size": BATCH, "mala_steps": mala_steps,
+                                  "refine_steps": max(0, round(cfg.refine_steps * steps_scale)),
+                                  "progress_every": max(1, min(PROGRESS_EVERY, mala_steps // 4))})  # >= 3 intervals
 
 
 def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "cpu", steps_scale: float = 1.0) -> dict:
@@ -89,7 +78,7 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
     step_ms = [(t1 - t0) * 1000.0 / (s1 - s0) for (s0, t0), (s1, t1) in zip(ticks, ticks[1:]) if s1 > s0]
     q = hand.sample_joint_angles(BATCH, generator=torch.Generator().manual_seed(SEED)).to(dev)
     with torch.no_grad():
-        fk_ms = _median_ms(lambda: hand.forward_kinematics(q), repeats, sync)
+        fk_ms = median_ms(lambda: hand.forward_kinematics(q), repeats, sync)
     accepted = int(result.accepted.sum())
     return {"accepted_per_s": round(accepted / seconds, 4), "accept_rate": round(result.accept_rate, 4),
             "accepted": accepted, "step_ms": round(statistics.median(step_ms), 3) if step_ms else None,

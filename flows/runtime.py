@@ -9,7 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -256,3 +256,25 @@ def wait_units(futures: Sequence, progress: StageProgress, run_id: str | None) -
     if failure is not None:
         raise failure
     return [m for m in manifests if m is not None], cached
+
+
+def planned_shards_and_merge(shard_specs: list, merge_spec_of: Callable[[list[Manifest]], object]) -> list:
+    """Unit specs knowable now for a shards-then-merge stage (``multigrasp status``): every shard, plus the
+    merge once every shard has a valid manifest (its key depends on them)."""
+    from tasks.artifacts import valid_manifest
+
+    manifests = [valid_manifest(spec.folder) for spec in shard_specs]
+    if all(m is not None for m in manifests):
+        return [*shard_specs, merge_spec_of(manifests)]
+    return list(shard_specs)
+
+
+def shards_then_merge(stage: str, shard_futures: Sequence, submit_merge: Callable[[list[Manifest]], object],
+                      progress: StageProgress, run_id: str) -> StageResult:
+    """Wait for a stage's shard units, submit its merge unit on their manifests, wait for it: the stage's
+    result, with how many units ran here and how many came from cache."""
+    shards, cached = wait_units(shard_futures, progress, run_id)
+    merged, merged_cached = wait_units([submit_merge(shards)], progress, run_id)
+    total = len(shard_futures) + 1
+    return StageResult(stage, merged[0], executed=total - cached - merged_cached, cached=cached + merged_cached,
+                       seconds=0.0, run_id=run_id)

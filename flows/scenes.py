@@ -5,9 +5,10 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import StageProgress, StageResult, make_console, make_task_runner, make_tracker, wait_units
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+                           planned_shards_and_merge, shards_then_merge)
 from tasks.tracking import Tracker
-from tasks.artifacts import Manifest, code_version, upstream_hashes, valid_manifest
+from tasks.artifacts import Manifest, code_version, upstream_hashes
 from tasks.scenes import (RENDER_CODE_DIRS, SCENES_CODE_DIRS, SPLITS, scenes_merge_task,
                           scenes_shard_task)
 from tasks.units import UnitSpec, make_spec
@@ -62,12 +63,7 @@ def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None =
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:
     """All unit specs whose keys can be known now (for ``multigrasp status``)."""
-    shards = shard_plan(cfg)
-    specs = [spec for spec, _ in shards]
-    manifests = [valid_manifest(spec.folder) for spec in specs]
-    if all(m is not None for m in manifests):
-        specs.append(merge_spec(cfg, manifests))  # type: ignore[arg-type]
-    return specs
+    return planned_shards_and_merge([spec for spec, _ in shard_plan(cfg)], lambda shards: merge_spec(cfg, shards))
 
 
 @flow(name="scenes", log_prints=False, validate_parameters=False)
@@ -80,13 +76,11 @@ def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Man
     progress = StageProgress(make_console(), STAGE, total=len(plan) + 1)
     futures = [scenes_shard_task.submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
                for spec, jobs in plan]
-    shards, cached = wait_units(futures, progress, run_id)
-    spec = merge_spec(cfg, shards, run_id, uri)
-    merged, merged_cached = wait_units(
-        [scenes_merge_task.submit(spec, shards, cfg.scenes, cfg.objects, cfg.hand, cfg.tracking.renders)], progress, run_id)
-    manifest = merged[0]
-    return StageResult(STAGE, manifest, executed=len(plan) + 1 - cached - merged_cached,
-                       cached=cached + merged_cached, seconds=0.0, run_id=run_id)
+    return shards_then_merge(
+        STAGE, futures,
+        lambda shards: scenes_merge_task.submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.scenes, cfg.objects,
+                                                cfg.hand, cfg.tracking.renders),
+        progress, run_id)
 
 
 def log_stage(tracker: Tracker, result: StageResult) -> None:

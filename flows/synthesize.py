@@ -7,10 +7,11 @@ from typing import Any
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import StageProgress, StageResult, make_console, make_task_runner, make_tracker, wait_units
-from tasks.artifacts import Manifest, code_version, digest, upstream_hashes, valid_manifest
-from tasks.synthesize import (MERGE_CODE_DIRS, SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_merge_task,
-                              synthesize_shard_task)
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+                           planned_shards_and_merge, shards_then_merge)
+from tasks.artifacts import Manifest, code_version, digest, upstream_hashes
+from tasks.synthesize import SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_shard_task
+from tasks.synthesize_merge import MERGE_CODE_DIRS, synthesize_merge_task
 from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
 
@@ -66,11 +67,8 @@ def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None =
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:
     """All unit specs whose keys can be known now (for ``multigrasp status``)."""
-    specs = [spec for spec, _ in shard_plan(cfg, upstream["scenes"])]
-    manifests = [valid_manifest(spec.folder) for spec in specs]
-    if all(m is not None for m in manifests):
-        specs.append(merge_spec(cfg, manifests))  # type: ignore[arg-type]
-    return specs
+    return planned_shards_and_merge([spec for spec, _ in shard_plan(cfg, upstream["scenes"])],
+                                    lambda shards: merge_spec(cfg, shards))
 
 
 @flow(name="synthesize", log_prints=False, validate_parameters=False)
@@ -88,15 +86,13 @@ def synthesize_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str,
     futures = [synthesize_shard_task.submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand, cfg.run.seed,
                                             cfg.run.device, cfg.run.torch_threads)
                for spec, chunk in plan]
-    shards, cached = wait_units(futures, progress, run_id)
-    spec = merge_spec(cfg, shards, run_id, uri)
-    merged, merged_cached = wait_units(
-        [synthesize_merge_task.submit(spec, shards, cfg.synthesis, cfg.objects, cfg.hand, cfg.tracking.renders)],
+    result = shards_then_merge(
+        STAGE, futures,
+        lambda shards: synthesize_merge_task.submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.synthesis,
+                                                    cfg.objects, cfg.hand, cfg.tracking.renders),
         progress, run_id)
-    manifest = merged[0]
-    print_report(console, manifest)
-    return StageResult(STAGE, manifest, executed=len(plan) + 1 - cached - merged_cached,
-                       cached=cached + merged_cached, seconds=0.0, run_id=run_id)
+    print_report(console, result.manifest)
+    return result
 
 
 def print_report(console, manifest: Manifest) -> None:

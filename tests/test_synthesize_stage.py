@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import tasks.synthesize
+import tasks.synthesize_merge
 from flows.cli import main
 from tasks.artifacts import read_manifest
 from tasks.units import executions
@@ -106,11 +107,11 @@ def test_zero_accepted_combination_gives_a_report_line_with_reasons():
     frame = pd.DataFrame({"scene_id": ["a", "a", "b"], "split": ["Pl"] * 3, "combination": ["cube+sphere"] * 3,
                           "accepted": [False] * 3, "reason": ["fc", "fc", "penetration"], "q1": [np.nan] * 3,
                           "pn_mm": [np.nan] * 3})
-    stats = tasks.synthesize.grasp_statistics(frame)
+    stats = tasks.synthesize_merge.grasp_statistics(frame)
     summary = stats["combinations"]["Pl/cube+sphere"]
     assert summary["accepted"] == 0 and summary["reasons"] == {"fc": 2, "penetration": 1}
     assert summary["mean_q1"] is None
-    line = tasks.synthesize.report_line("Pl/cube+sphere", summary)
+    line = tasks.synthesize_merge.report_line("Pl/cube+sphere", summary)
     assert line.startswith("Pl/cube+sphere: 0/3 accepted") and "fc 2" in line and "penetration 1" in line
 
 
@@ -146,8 +147,7 @@ def test_stage_writes_every_candidate_with_metrics_stats_and_renders(stage_runs)
     assert any(n.startswith("term_") for n in names)
     frame = accepted.select(["q1", "pn_mm", "R", "q"]).to_pandas()
     q1 = frame["q1"].to_numpy()
-    assert np.isnan(q1).sum() == merge.metrics["q1_failures"] < len(q1) / 2  # NaN only where Q1 failed numerically
-    assert (q1[np.isfinite(q1)] >= 0).all()
+    assert np.isfinite(q1).all() and (q1 >= 0).all()  # measured for every accepted grasp
     assert np.isfinite(frame["pn_mm"]).all() and (frame["pn_mm"] >= 0).all()
     assert len(frame["R"][0]) == 9 and len(frame["q"][0]) == 22
 
@@ -258,3 +258,12 @@ def test_bench_synthesis_writes_its_json(tmp_path):
     assert {"accepted_per_s", "accept_rate", "step_ms", "fk_ms", "threads", "workload"} <= set(result)
     assert result["workload"]["batch"] == 256 and result["workload"]["objects"] == ["cube", "cylinder"]
     assert result["step_ms"] > 0 and result["fk_ms"] > 0
+
+
+def test_merge_code_is_outside_the_shard_cache_keys():
+    """Editing reports or renders must recompute only the merge, never the (expensive) shards."""
+    from tasks.synthesize import SYNTHESIS_CODE_DIRS
+    from tasks.synthesize_merge import MERGE_CODE_DIRS
+
+    assert "tasks/synthesize_merge.py" in MERGE_CODE_DIRS
+    assert not any(d.startswith("tasks/synthesize_merge") for d in SYNTHESIS_CODE_DIRS)
