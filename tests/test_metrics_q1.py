@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from components.hand import HandConfig, HandModel
 from components.metrics import MetricsConfig, primitive_wrenches, q1_from_wrenches, q1_grasps, q1_single_object
-from components.objects import ObjectLibrary, ObjectsConfig, Placement, Scene
+from components.objects import Placement, Scene
 from components.synthesis import SceneObjects
 
 RADIUS = 0.025  # m
@@ -89,15 +88,7 @@ def test_q1_grows_with_friction_and_is_scale_free():
 # ----------------------------------------------------------------------------- batched, with the hand
 
 
-@pytest.fixture(scope="module")
-def hand():
-    return HandModel(HandConfig(), dtype=torch.float64)
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    return ObjectLibrary(ObjectsConfig(train=["cube", "cylinder", "sphere"], ood=[]),
-                         tmp_path_factory.getbasetemp() / "objects-cache")
+# hand (float64) and library (cube, cylinder, sphere): session fixtures of tests/conftest.py
 
 
 def test_q1_grasps_is_invariant_to_moving_hand_and_objects_together(hand, library):
