@@ -21,7 +21,9 @@ from components.synthesis import (
     switch_contacts,
     synthesize,
     temperature_at,
+    unpack,
 )
+from components.synthesis.energy import CONTACT_INDICES, assignment_scores, nearest_contacts, region_contacts
 
 SPHERE_RADIUS = 0.025
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -173,3 +175,51 @@ def test_guided_switches_pick_candidates_in_proportion_to_their_weights(hand):
                           log_weights=log_weights)
     assert set(new.flatten().tolist()) <= {10, 20}
     assert float((new == 20).float().mean()) == pytest.approx(0.75, abs=0.03)
+
+
+def _pair_problem(hand, library, **overrides):
+    scene = Scene(objects=(Placement("cube", (0.0, -0.03, 0.025), IDENTITY),
+                           Placement("sphere", (0.0, 0.03, SPHERE_RADIUS), IDENTITY)))
+    cfg = SynthesisConfig(batch_size=16, **overrides)
+    return GraspProblem.build(hand, SceneObjects(library, scene), cfg), scene
+
+
+def test_region_assignment_moves_each_contact_to_its_regions_best_candidate(hand, library):
+    problem, _ = _pair_problem(hand, library, contact_assignment="region")
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    p, R, q = unpack(x)
+    points, normals = hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
+    chosen = region_contacts(problem, contacts, points, normals)
+    region_of = hand.contact_region_of
+    assert torch.equal(region_of[chosen], region_of[contacts])  # the switches' region is kept
+    score = assignment_scores(problem, points, normals)  # (B, n_obj, K)
+    for b in range(4):
+        for j in range(2):
+            for c in range(3):
+                members = (region_of == region_of[contacts[b, j, c]]).nonzero().squeeze(-1)
+                assert float(score[b, j, chosen[b, j, c]]) == pytest.approx(float(score[b, j, members].min()))
+    # the energy reports the contacts it used
+    _, _, terms = energy_and_grad(problem, x, contacts)
+    assert torch.equal(terms[CONTACT_INDICES], chosen)
+
+
+def test_nearest_assignment_takes_the_best_candidate_of_the_best_fingers(hand, library):
+    problem, scene = _pair_problem(hand, library, contact_assignment="nearest")
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(1))
+    p, R, q = unpack(x)
+    points, normals = hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
+    chosen = nearest_contacts(problem, points, normals)
+    assert _fingers_distinct_per_object(chosen, problem.finger_of)
+    score = assignment_scores(problem, points, normals)
+    finger_of = problem.finger_of
+    for b in range(4):
+        for j in range(2):
+            per_finger = sorted(float(score[b, j, finger_of == f].min()) for f in range(int(finger_of.max()) + 1))
+            assert sorted(float(score[b, j, k]) for k in chosen[b, j]) == pytest.approx(per_finger[:3])
+    # the energy ignores the input contacts and the synthesis returns the ones it used
+    _, _, terms = energy_and_grad(problem, x, contacts)
+    assert torch.equal(terms[CONTACT_INDICES], chosen)
+    result = synthesize(hand, library, scene, problem.cfg.model_copy(
+        update={"batch_size": 4, "mala_steps": 4, "refine_steps": 2}), torch.Generator().manual_seed(0))
+    assert _fingers_distinct_per_object(result.contacts, finger_of)
+    assert torch.equal(result.contact_regions, hand.contact_region_of[result.contacts])

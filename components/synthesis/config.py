@@ -76,6 +76,20 @@ class SynthesisConfig(Section):
         "mala_steps / schedule_reference_steps so shorter runs anneal over the same range.")
     compress_schedule: bool = Field(
         True, description="Scale the decay periods to the run length (see schedule_reference_steps); no effect at 6500 steps.")
+    contact_assignment: Literal["switch", "region", "nearest"] = Field(
+        "switch",
+        description="How the contacts of each object are chosen. 'switch' (official): contacts are chain variables "
+        "changed by stochastic switches and the Metropolis test. 'region': the switches choose each contact's hand "
+        "region and the energy uses the region's candidate with the lowest assignment score (below) -- standing in "
+        "for the official release's continuous contact weights over a region's patch, which E_dist drives to the "
+        "patch point nearest the object. 'nearest': at every energy evaluation each object "
+        "takes, on each of its ``contacts_per_object`` best fingers, the candidate with the lowest assignment score "
+        "|d_O| + assign_align_scale_m * (1 + n_H . n_O) / 2 (energy.nearest_contacts) -- the conditional mode of the "
+        "contacts given the pose, so the energy is a function of the pose alone and no switch is proposed.")
+    assign_align_scale_m: float = Field(
+        0.02, ge=0.0,
+        description="With contact_assignment='nearest': distance (m) added to the score of a candidate whose hand "
+        "patch faces straight away from the object (half of it when perpendicular).")
     contact_switch_probability: float = Field(
         0.25, ge=0.0, le=1.0,
         description="Probability of a contact switch (official: 0.25); what it applies to is set by contact_switch_mode.")

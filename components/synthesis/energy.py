@@ -36,6 +36,11 @@ from components.synthesis.scene_objects import SceneObjects
 LARGE_HAND_GEOMS = ("C_forearm", "C_wrist")
 #: Key of the (B, K, 3) contact candidates in the dict returned by :func:`energy` (not an energy term).
 CANDIDATE_POINTS = "candidate_points"
+#: Key of the (B, n_obj, C) contact indices the energy used (the input ones, or with
+#: ``contact_assignment='nearest'`` the ones it chose); not an energy term.
+CONTACT_INDICES = "contact_indices"
+#: Keys of :func:`energy`'s terms dict that are not per-row energies or diagnostics.
+NON_TERM_KEYS = (CANDIDATE_POINTS, CONTACT_INDICES)
 
 
 # ============================================================================ the energy's terms
@@ -170,6 +175,51 @@ class GraspProblem:
         return self.hand.expand_actuated(self.hand.actuated(q)) if self.cfg.couple_distal_joints else q
 
 
+def assignment_scores(problem: "GraspProblem", points: Tensor, hand_normals: Tensor) -> Tensor:
+    """score_jk = |d_j(c_k)| + a * (1 + n_H(c_k) . n_j(c_k)) / 2 (a = ``assign_align_scale_m``): how well hand
+    candidate k would serve as a contact of object j (m).   points, hand_normals (B, K, 3) -> (B, n_obj, K)."""
+    with torch.no_grad():
+        d, n = problem.objects.sdf_and_normal(points)  # (B, K, n_obj), (B, K, n_obj, 3)
+        facing = (hand_normals.unsqueeze(2) * n).sum(-1)  # (B, K, n_obj)
+        return (d.abs() + problem.cfg.assign_align_scale_m * (1.0 + facing) / 2.0).transpose(1, 2)
+
+
+def region_contacts(problem: "GraspProblem", contacts: Tensor, points: Tensor, hand_normals: Tensor) -> Tensor:
+    """``contact_assignment='region'``: every contact moves to the candidate of its own hand region with the
+    lowest :func:`assignment_scores` for its object.   contacts (B, n_obj, C) -> (B, n_obj, C) long."""
+    region_of = problem.hand.contact_region_of  # (K,)
+    score = assignment_scores(problem, points, hand_normals)  # (B, n_obj, K)
+    same = region_of[contacts].unsqueeze(-1) == region_of  # (B, n_obj, C, K)
+    masked = score.unsqueeze(2).masked_fill(~same, float("inf"))
+    return masked.argmin(-1)
+
+
+def nearest_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor) -> Tensor:
+    """Contacts chosen from the pose (``contact_assignment='nearest'``): for object j and candidate k
+
+        score_jk = |d_j(c_k)| + a * (1 + n_H(c_k) . n_j(c_k)) / 2,     a = ``assign_align_scale_m``,
+
+    each finger f (``GraspProblem.finger_of``; the palm is one) offers its best candidate
+    k_jf = argmin_{k on f} score_jk, and object j takes the ``contacts_per_object`` fingers with the lowest
+    score_{j k_jf} -- so one object's contacts sit on distinct fingers (fingers may touch several objects).
+    Piecewise constant in the pose: the gradient flows through the chosen points, not the choice.
+    points, hand_normals (B, K, 3) -> contacts (B, n_obj, C) long."""
+    objects, cfg = problem.objects, problem.cfg
+    finger_of = problem.finger_of
+    n_fingers = int(finger_of.max()) + 1
+    score = assignment_scores(problem, points, hand_normals)  # (B, n_obj, K)
+    with torch.no_grad():
+        best_score, best_index = [], []
+        for f in range(n_fingers):
+            members = (finger_of == f).nonzero().squeeze(-1)  # (K_f,)
+            value, arg = score[..., members].min(-1)  # (B, n_obj)
+            best_score.append(value)
+            best_index.append(members[arg])
+        best_score, best_index = torch.stack(best_score, -1), torch.stack(best_index, -1)  # (B, n_obj, F)
+        chosen = best_score.topk(cfg.contacts_per_object, dim=-1, largest=False).indices  # (B, n_obj, C)
+        return best_index.gather(-1, chosen)
+
+
 def posed_in_world(prims: Primitives, p: Tensor, R: Tensor) -> Primitives:
     """Palm-frame primitives moved to the world by (p, R):  x_w = R x + p,  rot_w = R rot."""
     def move(x: Tensor) -> Tensor:  # (B, G, 3)
@@ -240,8 +290,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     ``pen_self``, ``pen_table`` ((B,)); diagnostics (detached, m): ``contact_distance_max``,
     ``penetration_depth_objects``, ``penetration_depth_table``, ``penetration_depth_self``,
     ``penetration_depth_max``, ``contact_distance_per_object`` (mean |d| of each object's contacts, (B, n_obj));
-    and ``candidate_points`` (B, K, 3): every contact candidate in the world (for guided contact switches;
-    not an energy term, dropped from results).
+    ``candidate_points`` (B, K, 3): every contact candidate in the world (for guided contact switches) and
+    ``contact_indices`` (B, n_obj, C): the contacts used (``NON_TERM_KEYS``: not energy terms, dropped from results).
     """
     cfg, hand, objects = problem.cfg, problem.hand, problem.objects
     w_dist = cfg.w_dist if w_dist is None else w_dist
@@ -254,6 +304,10 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 
     # contacts: E_fc and E_dist per object
     candidate_points, candidate_normals = hand.contact_candidates_and_normals(p, R, q)  # (B, K, 3) x2
+    if cfg.contact_assignment == "nearest":
+        contacts = nearest_contacts(problem, candidate_points.detach(), candidate_normals.detach())
+    elif cfg.contact_assignment == "region":
+        contacts = region_contacts(problem, contacts, candidate_points.detach(), candidate_normals.detach())
     contact_points = gather_contacts(candidate_points, contacts)  # (B, n_obj, C, 3)
     contact_normals = gather_contacts(candidate_normals, contacts)
     fc, dist, align, contact_dist = [], [], [], []
@@ -304,7 +358,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
             "penetration_depth_self": depth_self,
             "penetration_depth_max": torch.maximum(torch.maximum(depth_objects.amax(-1), depth_table), depth_self),
             "contact_distance_per_object": torch.stack(contact_dist, dim=1).mean(-1),
-            CANDIDATE_POINTS: candidate_points.detach(),
+            CANDIDATE_POINTS: candidate_points.detach(), CONTACT_INDICES: contacts,
         }
     return total, terms
 

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import GraspProblem, energy_and_grad
+from components.synthesis.energy import CONTACT_INDICES, GraspProblem, energy_and_grad
 from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION
 
 #: progress(step, total, info): called every ``progress_every`` steps with a dict of scalars
@@ -137,7 +137,7 @@ class Annealer:
     def __init__(self, problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torch.Generator):
         self.problem, self.cfg, self.generator = problem, problem.cfg, generator
         energy, grad, terms = energy_and_grad(problem, x, contacts)
-        self.state = AnnealerState(x.detach(), contacts, energy, grad, terms)
+        self.state = AnnealerState(x.detach(), terms[CONTACT_INDICES], energy, grad, terms)
         self.grad_sq_ema = self._grad_sq(grad)  # (D,) or (B, D), initialised with the first gradient
         self.scale = torch.ones_like(x[0])  # (D,) per-group step multipliers
         self.scale[TRANSLATION] = self.cfg.step_scale_translation
@@ -160,9 +160,12 @@ class Annealer:
         noise = torch.randn(state.x.shape, generator=self.generator, dtype=state.x.dtype,
                             device=self.generator.device).to(state.x.device)
         x_new = state.x - s * self.scale * precond + s * self.scale * cfg.langevin_noise * noise
-        contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator,
-                                       finger_of=self.problem.finger_of if cfg.contact_distinct_fingers else None,
-                                       log_weights=self._guide_log_weights())
+        if cfg.contact_assignment == "nearest":  # the energy chooses the contacts from the pose
+            contacts_new = state.contacts
+        else:
+            contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator,
+                                           finger_of=self.problem.finger_of if cfg.contact_distinct_fingers else None,
+                                           log_weights=self._guide_log_weights())
         self._proposal = (x_new, contacts_new)
         return x_new, contacts_new
 
@@ -191,7 +194,7 @@ class Annealer:
         keep = accept.unsqueeze(-1)
         state.x = torch.where(keep, x_new, state.x)
         state.grad = torch.where(keep, grad_new, state.grad)
-        state.contacts = torch.where(keep.unsqueeze(-1), contacts_new, state.contacts)
+        state.contacts = torch.where(keep.unsqueeze(-1), terms_new[CONTACT_INDICES], state.contacts)
         state.energy = torch.where(accept, energy_new, state.energy)
         state.terms = {k: torch.where(accept.reshape(-1, *[1] * (v.dim() - 1)), terms_new[k], v)
                        for k, v in state.terms.items()}

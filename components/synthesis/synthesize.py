@@ -20,7 +20,7 @@ from torch import Tensor
 from components.hand import HandModel
 from components.objects import ObjectLibrary, Scene
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import CANDIDATE_POINTS, GraspProblem, energy_and_grad, gather_contacts
+from components.synthesis.energy import CANDIDATE_POINTS, CONTACT_INDICES, GraspProblem, energy_and_grad, gather_contacts
 from components.synthesis.filtering import count_reasons, filter_grasps
 from components.synthesis.initializations import initial_poses
 from components.synthesis.optimizer import ProgressFn, refine, run_mala
@@ -85,13 +85,14 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
     state, mala_stats = run_mala(problem, x, contacts, generator, progress)
     x, refine_stats = refine(problem, state.x, state.contacts, progress)
     energy, _, terms = energy_and_grad(problem, x, state.contacts)
-    contact_points = gather_contacts(terms.pop(CANDIDATE_POINTS), state.contacts)  # (B, n_obj, C, 3)
+    contacts = terms.pop(CONTACT_INDICES)  # the input ones, or those chosen by contact_assignment='nearest'
+    contact_points = gather_contacts(terms.pop(CANDIDATE_POINTS), contacts)  # (B, n_obj, C, 3)
     accepted, reasons = filter_grasps(terms, cfg)
     p, R, q = unpack(x)
     q = problem.effective_joints(q)
     stats = {**mala_stats, **refine_stats, "seconds": time.perf_counter() - start,
              "accept_rate": float(accepted.float().mean())}
-    return SynthesisResult(scene=scene, object_names=list(objects.names), p=p, R=R, q=q, contacts=state.contacts,
-                           contact_regions=hand.contact_region_of[state.contacts], contact_points=contact_points,
+    return SynthesisResult(scene=scene, object_names=list(objects.names), p=p, R=R, q=q, contacts=contacts,
+                           contact_regions=hand.contact_region_of[contacts], contact_points=contact_points,
                            energy=energy, terms=terms,
                            accepted=accepted, reasons=reasons, stats=stats)
