@@ -22,6 +22,7 @@ from pydantic import Field, ValidationError, field_validator
 
 from components.config_base import Section
 from components.errors import MultigraspError
+from components.execution.lift_config import LiftEnvConfig
 from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
 from tasks.scenes import ScenesStageConfig
@@ -61,6 +62,8 @@ class PipelineConfig(Section):
     scenes: ScenesStageConfig = Field(default_factory=ScenesStageConfig, description="Tabletop scene stage.")
     synthesis: SynthesisStageConfig = Field(default_factory=SynthesisStageConfig,
                                             description="Grasp synthesis stage (optimiser, metrics, scenes, renders).")
+    lift: LiftEnvConfig = Field(default_factory=LiftEnvConfig,
+                                description="PyBullet lift environment of the execution policies (physics, actions, reward).")
 
     @field_validator("run")
     @classmethod

@@ -1,0 +1,107 @@
+"""Benchmark: lift-environment speed against bare PyBullet stepping (``multigrasp bench sim``).
+
+Workload: the cube + cylinder scene of :func:`components.objects.sample_scene` with ``numpy`` seed
+:data:`SEED`, the open hand posed above the objects (``cameras.preview_hand_pose``), the default
+:class:`LiftEnvConfig` (the pipeline's ``lift`` section) and a PointNet encoder of the configured size
+(untrained: it costs what the pre-trained one costs).  Zero actions, so the env and the bare loop
+simulate the same motion.  Reported (medians over ``repeats``):
+
+* ``env_steps_per_s`` -- :class:`LiftEnv` steps per second (action, ``substeps`` physics steps, state
+  reads, observation with point-cloud features every ``feature_period`` steps, reward), 1 torch thread;
+* ``env_steps_per_s_2workers`` -- the same in 2 processes at once, steps of both per wall second;
+* ``raw_physics_steps_per_s`` -- bare ``stepSimulation`` of the same world from the same reset
+  (:meth:`LiftWorld.step_raw`), measured in the same run;
+* ``overhead_ratio`` = env_steps_per_s * substeps / raw_physics_steps_per_s (1 = the env costs nothing
+  on top of the physics).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+SEED = 0
+BENCH_OBJECTS = ("cube", "cylinder")
+#: Environment steps per timed run (one episode of the default config, 2.5 s).
+STEPS = 100
+
+
+def _make_env(cache_dir: str):
+    """The benchmark's env and its pre-grasp record (in any process)."""
+    import torch
+
+    from components.execution import LiftEnv, LiftEnvConfig
+    from components.execution.cameras import CameraConfig, preview_hand_pose
+    from components.execution.lift_sim import GraspRecord
+    from components.execution.pointnet import PointNetConfig, PointNetEncoder
+    from components.hand import HandConfig, HandModel
+    from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
+
+    torch.set_num_threads(1)
+    cfg = LiftEnvConfig()
+    hand = HandModel(HandConfig())
+    library = ObjectLibrary(ObjectsConfig(), cache_dir=Path(cache_dir))
+    scene = sample_scene(library, list(BENCH_OBJECTS), np.random.default_rng(SEED), ScenesConfig())
+    p, R, q = preview_hand_pose(hand, scene, CameraConfig(), library)
+    urdf = hand.export_urdf(Path(cache_dir) / f"hand-{mp.current_process().pid}")
+    encoder = PointNetEncoder(PointNetConfig(feature_dim=cfg.feature_dim)).eval()
+    record = GraspRecord(scene=scene, p=p, R=R, q=q.astype(np.float64))
+    return LiftEnv(hand, library, urdf, [record], cfg, encoder), cfg
+
+
+def _time_env(env, steps: int) -> float:
+    import torch
+
+    zero = torch.zeros(env.action_spec.shape)
+    td = env.reset()
+    start = time.perf_counter()
+    for _ in range(steps):
+        td["action"] = zero
+        td = env.step(td)["next"]
+    return steps / (time.perf_counter() - start)
+
+
+def _worker(cache_dir: str, steps: int, barrier, out) -> None:
+    env, _ = _make_env(cache_dir)
+    _time_env(env, 10)  # warm-up
+    barrier.wait()
+    out.put(_time_env(env, steps))
+    env.close()
+
+
+def run_sim_benchmark(repeats: int = 5) -> dict:
+    """Run the workload (module docstring); returns the JSON-able result."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env, cfg = _make_env(tmp)
+        _time_env(env, 10)  # warm-up
+        env_rates, raw_rates = [], []
+        for _ in range(repeats):
+            env_rates.append(_time_env(env, STEPS))
+            env.world.reset(env.records[0])
+            start = time.perf_counter()
+            env.world.step_raw(STEPS * cfg.substeps)
+            raw_rates.append(STEPS * cfg.substeps / (time.perf_counter() - start))
+        env.close()
+        ctx = mp.get_context("spawn")
+        two = []
+        for _ in range(max(1, repeats // 2)):
+            barrier, out = ctx.Barrier(2), ctx.Queue()
+            procs = [ctx.Process(target=_worker, args=(tmp, STEPS, barrier, out)) for _ in range(2)]
+            for proc in procs:
+                proc.start()
+            rates = [out.get() for _ in procs]
+            for proc in procs:
+                proc.join()
+            two.append(sum(rates))
+    env_rate, raw_rate = statistics.median(env_rates), statistics.median(raw_rates)
+    return {"env_steps_per_s": round(env_rate, 1), "env_steps_per_s_2workers": round(statistics.median(two), 1),
+            "raw_physics_steps_per_s": round(raw_rate, 1), "substeps": cfg.substeps,
+            "overhead_ratio": round(env_rate * cfg.substeps / raw_rate, 3), "repeats": repeats,
+            "workload": {"objects": list(BENCH_OBJECTS), "scene_seed": SEED, "steps": STEPS,
+                         "physics_hz": cfg.physics_hz, "feature_period": cfg.feature_period,
+                         "feature_dim": cfg.feature_dim, "actions": "zero"}}

@@ -1,0 +1,92 @@
+"""Config of the lift environment (:class:`LiftEnvConfig`; paper §"Learning a Multi-Object Lifting Policy").
+
+Every number the environment uses lives here with its unit and reason: physics rate and control
+substeps, how actions map to the base wrench and the joint targets, the reward weights, the success
+heights and the point-cloud sizes of the observation's feature blocks.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, model_validator
+
+from components.config_base import Section
+
+
+class LiftEnvConfig(Section):
+    """The PyBullet lift environment: physics, action scaling, reward, episode, observation options."""
+
+    # ------------------------------------------------------------------ physics
+    physics_hz: int = Field(240, ge=60, description="PyBullet simulation rate (Hz); 240 is PyBullet's default and stable for the hand's small links.")
+    substeps: int = Field(
+        6, ge=1,
+        description="Physics steps per environment step: the policy acts at physics_hz / substeps = 40 Hz.  The "
+        "env's own work (observation, features, reward, TorchRL) is ~1.1 ms per step on one core against ~0.66 ms "
+        "per physics step, so 4 substeps (60 Hz) leave ~0.69 of the time to the physics and 6 leave ~0.78 "
+        "(benchmarks/sim.py).  Named 'substeps' and not 'frame_skip': an env attribute called frame_skip makes "
+        "torchrl repeat steps.")
+    solver_iterations: int = Field(50, ge=1, description="PyBullet constraint solver iterations per step (default 50).")
+    gravity_compensation: bool = Field(
+        True,
+        description="Apply the hand's total weight upwards at its centre of mass every physics step, so zero base "
+        "wrench holds the hand still (the hand of the paper hangs from a robot arm).")
+    base_linear_damping: float = Field(
+        0.5, ge=0.0, description="PyBullet linear damping of the hand base (1/s): keeps the free-floating hand from drifting.")
+    base_angular_damping: float = Field(0.5, ge=0.0, description="PyBullet angular damping of the hand base (1/s).")
+    hand_lateral_friction: float = Field(1.0, ge=0.0, description="Lateral friction of every hand link (rubber-like finger pads).")
+
+    # ------------------------------------------------------------------ actions (paper table: 18 joint targets + 6-D base wrench)
+    max_base_force_n: float = Field(
+        20.0, gt=0.0, description="Base force at action +-1 on an axis (N, world frame); the hand weighs ~4 kg with its forearm.")
+    max_base_torque_nm: float = Field(2.0, gt=0.0, description="Base torque at action +-1 on an axis (N m, world frame).")
+    joint_delta_rad: float = Field(
+        0.075, gt=0.0,
+        description="Joint targets move by action * this per environment step (rad), starting at the pre-grasp "
+        "angles and clamped to the joint limits: zero action holds the pre-grasp.  J0 of FF/MF/RF/LF follows J1.")
+    joint_position_gain: float = Field(0.3, gt=0.0, description="PyBullet POSITION_CONTROL position gain of every finger joint.")
+    joint_velocity_gain: float = Field(1.0, ge=0.0, description="PyBullet POSITION_CONTROL velocity gain of every finger joint.")
+    joint_max_force_nm: float = Field(5.0, gt=0.0, description="Largest motor torque of a finger joint (N m).")
+
+    # ------------------------------------------------------------------ episode
+    max_steps: int = Field(100, ge=1, description="Environment steps per episode (2.5 s at 40 Hz); the episode is truncated after them.")
+    fall_height_m: float = Field(
+        -0.05, description="An object whose centre falls below this height (m, table top = 0) ends the episode (terminated).")
+
+    # ------------------------------------------------------------------ reward (paper Eq. rl-rewards)
+    w_lift: float = Field(10.0, ge=0.0, description="omega_lift: weight of r_lift = min_j (z_j - z_j(0)) (m), the lift of the lowest object.")
+    w_success: float = Field(1.0, ge=0.0, description="omega_succ: bonus per step while every object is lifted above success_height_m.")
+    w_rotation: float = Field(0.1, ge=0.0, description="omega_r: weight of r_r = -angle(R_goal^T R) (rad), the palm's rotation away from the pre-grasp.")
+    w_joint: float = Field(0.1, ge=0.0, description="omega_q: weight of r_q = -mean_i |q_i - q_goal_i| (rad) over the 22 joints.")
+    w_object: float = Field(
+        1.0, ge=0.0,
+        description="omega_obj: weight of r_obj = -sum_j |p_j^palm - p_j^palm,goal| (m), the objects' displacement "
+        "in the palm frame from where the pre-grasp held them.")
+    success_height_m: float = Field(0.15, gt=0.0, description="Lift (m) above which every object must be for the success bonus (paper: 15 cm).")
+    eval_success_height_m: float = Field(0.10, gt=0.0, description="Lift (m) every object must exceed at the end of an evaluation rollout (paper: 10 cm).")
+
+    # ------------------------------------------------------------------ observation
+    goal_observations: bool = Field(
+        True,
+        description="Include the goal blocks (joint and orientation goals/residues, object pose goals/residues). False "
+        "is the paper's 'w/o Goal' ablation (their reward terms are then off too).")
+    feature_dim: int = Field(256, ge=1, description="Dimension of each point-cloud feature (paper: 256, a pre-trained PointNet).")
+    hand_cloud_points: int = Field(128, ge=8, description="Points of the hand cloud given to the encoder (a fixed subset of the hand surface samples).")
+    hand_cloud_spacing_m: float = Field(0.01, gt=0.0, description="Spacing of the hand surface samples the hand cloud is drawn from (m).")
+    object_cloud_points: int = Field(128, ge=8, description="Points of each object's cloud given to the encoder (fixed samples on its surface).")
+    feature_period: int = Field(
+        4, ge=1,
+        description="Recompute the point-cloud features every this many environment steps (1 = every step); "
+        "between updates the last features are observed.  4 (10 Hz): encoding 3 clouds costs about a third of "
+        "a step's physics on one CPU thread (benchmarks/sim.py); features of a held grasp change slowly.")
+    cloud_seed: int = Field(0, ge=0, description="Seed of the fixed hand and object cloud samples.")
+
+    @model_validator(mode="after")
+    def _heights(self) -> "LiftEnvConfig":
+        if self.eval_success_height_m > self.success_height_m:
+            raise ValueError("eval_success_height_m must not exceed success_height_m (the bonus would never be reached "
+                             "before an evaluation counts a success)")
+        return self
+
+    @property
+    def control_dt(self) -> float:
+        """Seconds per environment step."""
+        return self.substeps / self.physics_hz

@@ -1,0 +1,146 @@
+"""TorchRL environment of the lift task over PyBullet (paper §"Learning a Multi-Object Lifting Policy").
+
+    env = LiftEnv(hand, library, urdf, records, LiftEnvConfig(), encoder)
+    check_env_specs(env)
+    rollout = env.rollout(150, policy)
+
+An episode starts from the pre-grasp of one :class:`GraspRecord` (hand and objects as the record puts
+them, at rest; drawn at random or in turn, ``record_order``), then each step applies a 24-D action in
+[-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps.  Output keys:
+
+* ``observation`` (D,) float32 -- :mod:`components.execution.observations` (998 entries for 2 objects);
+* ``reward`` (1,) -- :func:`components.execution.observations.reward_terms`;
+* ``lift`` (1,) -- min_j (z_j - z_j(0)) (m);  ``success`` (1,) bool -- lift > ``eval_success_height_m``;
+* ``done`` / ``terminated`` (an object fell below ``fall_height_m``) / ``truncated`` (``max_steps`` reached).
+
+Every record of one env must have the same number of objects (the observation's size depends on it);
+the specialists of one bin satisfy this.  Non-batched (batch_size ``[]``): parallel rollouts come from
+several env copies in collector workers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal, Optional, Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from components.errors import MultigraspError
+from components.execution.clouds import CloudFeaturizer, Encoder
+from components.execution.lift_config import LiftEnvConfig
+from components.execution.lift_sim import N_JOINT_ACTIONS, N_WRENCH, GraspRecord, LiftWorld, WorldState
+from components.execution.observations import Goal, build_observation, observation_dim, reward_terms
+from components.hand import HandModel
+from components.objects import ObjectLibrary
+
+N_ACTIONS = N_JOINT_ACTIONS + N_WRENCH
+
+
+class LiftEnv(EnvBase):
+    """The lift task as a TorchRL env (module docstring)."""
+
+    batch_locked = True
+
+    def __init__(self, hand: HandModel, library: ObjectLibrary, urdf: Path, records: Sequence[GraspRecord],
+                 cfg: LiftEnvConfig, encoder: Encoder, record_order: Literal["random", "cycle"] = "random",
+                 seed: int = 0):
+        super().__init__(device="cpu", batch_size=torch.Size([]))
+        if not records:
+            raise MultigraspError("the lift env got no grasp records; run the synthesis stage first "
+                                  "(multigrasp run --until synthesize) or pass records")
+        counts = {len(r.scene.objects) for r in records}
+        if len(counts) != 1:
+            raise MultigraspError(f"the lift env's records mix {sorted(counts)} objects per scene; give one env the "
+                                  "records of one object count (one specialist bin)")
+        self.cfg, self.records, self.record_order = cfg, list(records), record_order
+        self.n_objects = counts.pop()
+        self.world = LiftWorld(hand, library, urdf, cfg)
+        self.featurizer = CloudFeaturizer(hand, library, cfg, encoder)
+        self._rng = np.random.default_rng(seed)
+        self._next = 0
+        dim = observation_dim(cfg, self.n_objects)
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(dim,), dtype=torch.float32),
+            lift=Unbounded(shape=(1,), dtype=torch.float32),
+            success=Categorical(n=2, shape=(1,), dtype=torch.bool))
+        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(N_ACTIONS,), dtype=torch.float32)
+        self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32)
+        self.done_spec = Composite(done=Categorical(n=2, shape=(1,), dtype=torch.bool),
+                                   terminated=Categorical(n=2, shape=(1,), dtype=torch.bool),
+                                   truncated=Categorical(n=2, shape=(1,), dtype=torch.bool))
+        self._goal: Optional[Goal] = None
+        self._start_heights = np.zeros(self.n_objects)
+        self._last_action = np.zeros(N_ACTIONS)
+        self._features = np.zeros((1 + self.n_objects, cfg.feature_dim), dtype=np.float32)
+        self._t = 0
+        self.last_terms: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ records
+    def _pick_record(self) -> GraspRecord:
+        if self.record_order == "cycle":
+            record = self.records[self._next % len(self.records)]
+            self._next += 1
+            return record
+        return self.records[int(self._rng.integers(len(self.records)))]
+
+    def set_next_record(self, index: int) -> None:
+        """Make the next reset start from record ``index`` (evaluation), whatever ``record_order``."""
+        self._forced = index
+
+    # ------------------------------------------------------------------ EnvBase
+    def _update_features(self, state: WorldState) -> None:
+        clouds = self.featurizer.clouds(self.world.link_frames(), state.palm_pos, state.palm_rot,
+                                        self.world.record.scene.names, state.obj_pos, state.obj_rot)
+        self._features = self.featurizer.features(clouds)
+
+    def _output(self, state: WorldState, terms: dict) -> dict:
+        obs = build_observation(self.cfg, state, self._goal, self._last_action, self._features[0], self._features[1:])
+        lift = float((state.obj_pos[:, 2] - self._start_heights).min())
+        return {"observation": torch.from_numpy(obs),
+                "lift": torch.tensor([lift], dtype=torch.float32),
+                "success": torch.tensor([lift > self.cfg.eval_success_height_m])}
+
+    def _reset(self, tensordict: Optional[TensorDictBase] = None, **kwargs) -> TensorDictBase:
+        forced = getattr(self, "_forced", None)
+        record = self.records[forced] if forced is not None else self._pick_record()
+        self._forced = None
+        state = self.world.reset(record)
+        self._goal = Goal.from_state(state)
+        self._start_heights = state.obj_pos[:, 2].copy()
+        self._last_action = np.zeros(N_ACTIONS)
+        self._t = 0
+        self._update_features(state)
+        false = torch.zeros(1, dtype=torch.bool)
+        return TensorDict({**self._output(state, {}), "done": false, "terminated": false.clone(),
+                           "truncated": false.clone()}, batch_size=self.batch_size)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action").detach().cpu().numpy().astype(np.float64)
+        state = self.world.step(action)
+        self._last_action = np.clip(action, -1.0, 1.0)
+        self._t += 1
+        if self._t % self.cfg.feature_period == 0:
+            self._update_features(state)
+        terms = reward_terms(self.cfg, state, self._goal, self._start_heights)
+        self.last_terms = terms
+        terminated = bool((state.obj_pos[:, 2] < self.cfg.fall_height_m).any())
+        truncated = self._t >= self.cfg.max_steps
+        return TensorDict({**self._output(state, terms),
+                           "reward": torch.tensor([terms["reward"]], dtype=torch.float32),
+                           "done": torch.tensor([terminated or truncated]),
+                           "terminated": torch.tensor([terminated]),
+                           "truncated": torch.tensor([truncated])}, batch_size=self.batch_size)
+
+    def _set_seed(self, seed: Optional[int]) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        self.world.close()
+        try:
+            super().close(raise_if_closed=raise_if_closed)
+        except TypeError:  # older signature
+            super().close()

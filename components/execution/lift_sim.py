@@ -1,0 +1,257 @@
+"""The PyBullet world of the lift task: a free-floating Shadow Hand driven by a base wrench and joint
+targets, a table, and the objects of one grasp record (paper §"Multi-object Grasp Execution").
+
+One :class:`LiftWorld` owns one PyBullet client in DIRECT mode (no GUI, CPU).  The hand is loaded once
+(the project's URDF, exported from the same MJCF as the FK); objects are created per record and reused
+while consecutive records use the same objects.
+
+Frames.  PyBullet reports a free base at its *centre of mass* (the URDF's inertial frame), not at the URDF
+link frame; the palm frame of the FK is  T_palm = T_com * T_inertial^-1  with T_inertial the base's local
+inertial frame (``getDynamicsInfo``).  Every pose this module takes or returns is the palm frame.
+
+Actions (paper table: 24-D).  a[:18] in [-1, 1] moves the 18 actuated joint targets by
+``joint_delta_rad * a`` (J0 of FF/MF/RF/LF follows J1, the tendon coupling); a[18:21] and a[21:24] are the
+base force and torque in the world frame, times ``max_base_force_n`` / ``max_base_torque_nm``.  With
+``gravity_compensation`` the hand's weight is cancelled at its centre of mass every physics step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+from scipy.spatial.transform import Rotation
+
+from components.execution.cameras import CameraConfig, add_table
+from components.execution.lift_config import LiftEnvConfig
+from components.hand import HandModel
+from components.objects import ObjectLibrary, Scene
+
+#: Gravity (m/s^2) along -z.
+GRAVITY = 9.81
+#: Finger tips whose wrenches the policy observes, thumb last (paper table: 5 x 6).
+FINGERTIPS = ("ff", "mf", "rf", "lf", "th")
+#: Action layout: 18 joint-target deltas, then the 6-D base wrench (force, torque).
+N_JOINT_ACTIONS, N_WRENCH = 18, 6
+
+
+@dataclass
+class GraspRecord:
+    """A pre-grasp to lift: the scene (objects and placements) and the hand pose H = (p, R, q) in it."""
+
+    scene: Scene
+    p: np.ndarray  # (3,) palm position (m)
+    R: np.ndarray  # (3, 3) palm rotation
+    q: np.ndarray  # (22,) joint angles (rad)
+
+
+@dataclass
+class WorldState:
+    """Everything the observation and reward read after a step (palm frame = FK palm frame)."""
+
+    q: np.ndarray  # (22,) joint angles
+    dq: np.ndarray  # (22,) joint velocities
+    tau: np.ndarray  # (22,) applied motor torques
+    tip_wrench: np.ndarray  # (5, 6) reaction force and torque at the joint of each fingertip link
+    palm_pos: np.ndarray  # (3,)
+    palm_rot: np.ndarray  # (3, 3)
+    palm_lin_vel: np.ndarray  # (3,)
+    palm_ang_vel: np.ndarray  # (3,)
+    obj_pos: np.ndarray  # (n_obj, 3) object origins (world)
+    obj_rot: np.ndarray  # (n_obj, 3, 3)
+    obj_lin_vel: np.ndarray  # (n_obj, 3)
+    obj_ang_vel: np.ndarray  # (n_obj, 3)
+
+
+def _matrix(pos, quat) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = np.asarray(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    out[:3, 3] = pos
+    return out
+
+
+class LiftWorld:
+    """One PyBullet client with the hand, the table and the current record's objects (module docstring)."""
+
+    def __init__(self, hand: HandModel, library: ObjectLibrary, urdf: Path, cfg: LiftEnvConfig,
+                 table: CameraConfig | None = None):
+        self.hand, self.library, self.cfg = hand, library, cfg
+        self.client = pb.connect(pb.DIRECT)
+        c = self.client
+        pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
+        pb.setPhysicsEngineParameter(fixedTimeStep=1.0 / cfg.physics_hz, numSolverIterations=cfg.solver_iterations,
+                                     physicsClientId=c)
+        add_table(c, table or CameraConfig())
+        self.body = pb.loadURDF(str(urdf), useFixedBase=False, flags=pb.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+        self.joint_index = hand.pybullet_joint_indices(self.body, c)  # (22,) in hand.joint_names order
+        self.link_index = hand.pybullet_link_indices(self.body, c)  # (L,) -1 = palm (base)
+        info = pb.getDynamicsInfo(self.body, -1, physicsClientId=c)
+        self._inertial = (info[3], info[4])  # base COM in the palm frame
+        self._inv_inertial = pb.invertTransform(*self._inertial)
+        self._all_links = list(range(pb.getNumJoints(self.body, physicsClientId=c)))
+        self._masses = np.array([pb.getDynamicsInfo(self.body, i, physicsClientId=c)[0] for i in [-1, *self._all_links]])
+        self.mass = float(self._masses.sum())  # kg, the whole hand
+        self._child_links = [i for i in self.link_index if i >= 0]
+        for link in [-1, *self._child_links]:
+            pb.changeDynamics(self.body, link, lateralFriction=cfg.hand_lateral_friction, physicsClientId=c)
+        pb.changeDynamics(self.body, -1, linearDamping=cfg.base_linear_damping, angularDamping=cfg.base_angular_damping,
+                          physicsClientId=c)
+        # fingertip joints: the joint whose child is each finger's distal link; sensors report their wrench
+        names = {pb.getJointInfo(self.body, j, physicsClientId=c)[12].decode(): j
+                 for j in range(pb.getNumJoints(self.body, physicsClientId=c))}
+        self.tip_joints = [next(j for n, j in names.items() if n.startswith(f) and n.endswith("distal")) for f in FINGERTIPS]
+        for j in self.tip_joints:
+            pb.enableJointForceTorqueSensor(self.body, j, True, physicsClientId=c)
+        index = {n: i for i, n in enumerate(hand.joint_names)}
+        self._actuated = np.array([index[n] for n in hand.actuated_joint_names])  # (18,) positions in the 22
+        couplings = list(hand.spec.couplings)  # J0 = clamp(offset + ratio * J1) (numpy copy of the FK's coupling)
+        self._follower = np.array([index[c.follower] for c in couplings])
+        self._leader = np.array([index[c.leader] for c in couplings])
+        self._ratio = np.array([c.ratio for c in couplings])
+        self._offset = np.array([c.offset for c in couplings])
+        self.lower, self.upper = (hand.joint_limits.detach().cpu().numpy().T.astype(np.float64))  # (22,) x2
+        self.objects: list[int] = []
+        self._object_names: tuple[str, ...] = ()
+        self.targets = np.zeros(len(self.joint_index))  # (22,) current joint targets
+        self.record: GraspRecord | None = None
+
+    # ------------------------------------------------------------------ reset
+    def set_palm_pose(self, p: np.ndarray, R: np.ndarray) -> None:
+        """Place the base so that the palm frame is at (p, R), at rest."""
+        quat = Rotation.from_matrix(R).as_quat()
+        pos, orn = pb.multiplyTransforms(list(map(float, p)), list(map(float, quat)), *self._inertial)
+        pb.resetBasePositionAndOrientation(self.body, pos, orn, physicsClientId=self.client)
+        pb.resetBaseVelocity(self.body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
+
+    def reset(self, record: GraspRecord) -> WorldState:
+        """Hand and objects at the record's pre-grasp, everything at rest, joint targets = its joint angles."""
+        c = self.client
+        names = record.scene.names
+        if names != self._object_names:
+            for body in self.objects:
+                pb.removeBody(body, physicsClientId=c)
+            self.objects = [self.library.get(p.name).pybullet_body(c, p.position, p.quat_xyzw) for p in record.scene.objects]
+            self._object_names = names
+        for body, placement in zip(self.objects, record.scene.objects):
+            pb.resetBasePositionAndOrientation(body, placement.position, placement.quat_xyzw, physicsClientId=c)
+            pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+        self.set_palm_pose(record.p, record.R)
+        q = np.asarray(record.q, dtype=np.float64)
+        for index, angle in zip(self.joint_index, q):
+            pb.resetJointState(self.body, index, float(angle), 0.0, physicsClientId=c)
+        self.targets = np.clip(q, self.lower, self.upper)
+        self._send_targets()
+        self.record = record
+        return self.read()
+
+    # ------------------------------------------------------------------ stepping
+    def _send_targets(self) -> None:
+        n = len(self.joint_index)
+        pb.setJointMotorControlArray(
+            self.body, self.joint_index, pb.POSITION_CONTROL, targetPositions=self.targets.tolist(),
+            forces=[self.cfg.joint_max_force_nm] * n, positionGains=[self.cfg.joint_position_gain] * n,
+            velocityGains=[self.cfg.joint_velocity_gain] * n, physicsClientId=self.client)
+
+    def set_action(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply the joint part of a (24,) action to the targets; return the base (force, torque) it asks for."""
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        q22 = self.targets.copy()
+        q22[self._actuated] += self.cfg.joint_delta_rad * a[:N_JOINT_ACTIONS]
+        q22 = np.clip(q22, self.lower, self.upper)
+        q22[self._follower] = np.clip(self._offset + self._ratio * q22[self._leader],
+                                      self.lower[self._follower], self.upper[self._follower])
+        self.targets = q22
+        self._send_targets()
+        force = self.cfg.max_base_force_n * a[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3]
+        torque = self.cfg.max_base_torque_nm * a[N_JOINT_ACTIONS + 3:]
+        return force, torque
+
+    def _hand_com(self) -> np.ndarray:
+        """Centre of mass of the whole hand (world)."""
+        c = self.client
+        base = np.asarray(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
+        states = pb.getLinkStates(self.body, self._all_links, physicsClientId=c)  # [0]: link COM (world)
+        positions = np.array([base, *[s[0] for s in states]])
+        return (self._masses[:, None] * positions).sum(0) / self.mass
+
+    def step(self, action: np.ndarray) -> WorldState:
+        """One environment step: set the action, then ``substeps`` physics steps with the base wrench
+        (and the weight compensation, at the hand's centre of mass) applied at each."""
+        force, torque = self.set_action(action)
+        c = self.client
+        lift = np.array([0.0, 0.0, self.mass * GRAVITY]) if self.cfg.gravity_compensation else np.zeros(3)
+        com = self._hand_com()
+        base_com = np.asarray(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
+        # the weight acts at the hand's COM: lifting it there = lifting at the base COM plus a torque
+        total_torque = torque + np.cross(com - base_com, lift)
+        for _ in range(self.cfg.substeps):
+            pb.applyExternalForce(self.body, -1, (force + lift).tolist(), base_com.tolist(), pb.WORLD_FRAME,
+                                  physicsClientId=c)
+            pb.applyExternalTorque(self.body, -1, total_torque.tolist(), pb.WORLD_FRAME, physicsClientId=c)
+            pb.stepSimulation(physicsClientId=c)
+        return self.read()
+
+    def step_raw(self, n: int) -> None:
+        """n bare physics steps -- no action, no state reads, only the constant weight compensation force (the
+        same physical input as a zero action): the benchmark's reference cost of the physics alone."""
+        c = self.client
+        lift = [0.0, 0.0, self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0]
+        com = self._hand_com()
+        base_com = np.asarray(pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0])
+        torque = np.cross(com - base_com, lift).tolist()
+        base_com = base_com.tolist()
+        for _ in range(n):
+            pb.applyExternalForce(self.body, -1, lift, base_com, pb.WORLD_FRAME, physicsClientId=c)
+            pb.applyExternalTorque(self.body, -1, torque, pb.WORLD_FRAME, physicsClientId=c)
+            pb.stepSimulation(physicsClientId=c)
+
+    # ------------------------------------------------------------------ state
+    def palm_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(p (3,), R (3, 3)) of the palm frame (module docstring)."""
+        pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
+        p, quat = pb.multiplyTransforms(pos, orn, *self._inv_inertial)
+        return np.asarray(p), np.asarray(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
+
+    def read(self) -> WorldState:
+        c = self.client
+        joints = pb.getJointStates(self.body, self.joint_index, physicsClientId=c)
+        q = np.array([s[0] for s in joints])
+        dq = np.array([s[1] for s in joints])
+        tau = np.array([s[3] for s in joints])
+        tips = pb.getJointStates(self.body, self.tip_joints, physicsClientId=c)
+        tip_wrench = np.array([s[2] for s in tips])  # (5, 6)
+        p, R = self.palm_pose()
+        lin, ang = pb.getBaseVelocity(self.body, physicsClientId=c)
+        obj_pos, obj_rot, obj_lin, obj_ang = [], [], [], []
+        for body in self.objects:
+            pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=c)
+            v, w = pb.getBaseVelocity(body, physicsClientId=c)
+            obj_pos.append(pos)
+            obj_rot.append(np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3))
+            obj_lin.append(v)
+            obj_ang.append(w)
+        return WorldState(q=q, dq=dq, tau=tau, tip_wrench=tip_wrench, palm_pos=p, palm_rot=R,
+                          palm_lin_vel=np.asarray(lin), palm_ang_vel=np.asarray(ang),
+                          obj_pos=np.asarray(obj_pos).reshape(-1, 3), obj_rot=np.asarray(obj_rot).reshape(-1, 3, 3),
+                          obj_lin_vel=np.asarray(obj_lin).reshape(-1, 3), obj_ang_vel=np.asarray(obj_ang).reshape(-1, 3))
+
+    def link_frames(self) -> np.ndarray:
+        """World frames (L, 4, 4) of the hand's links in ``HandModel.link_names`` order (the palm's = palm frame)."""
+        p, R = self.palm_pose()
+        frames = np.empty((len(self.link_index), 4, 4))
+        states = iter(pb.getLinkStates(self.body, self._child_links, computeForwardKinematics=True,
+                                       physicsClientId=self.client))
+        for k, link in enumerate(self.link_index):
+            if link < 0:
+                frames[k] = np.eye(4)
+                frames[k, :3, :3], frames[k, :3, 3] = R, p
+            else:
+                frames[k] = _matrix(*next(states)[4:6])
+        return frames
+
+    def close(self) -> None:
+        if self.client is not None and pb.isConnected(self.client):
+            pb.disconnect(self.client)
+        self.client = None

@@ -1,0 +1,129 @@
+"""Lift environment: TorchRL specs, the paper's observation blocks, zero-action stability, wrench actions,
+palm-frame bookkeeping, reward terms at the goal, clear errors."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+from torchrl.envs.utils import check_env_specs
+
+from components.errors import MultigraspError
+from components.execution import GraspRecord, LiftEnv, LiftEnvConfig, observation_blocks, observation_dim
+from components.execution.cameras import CameraConfig, preview_hand_pose
+from components.execution.observations import Goal, euler_xyz, reward_terms
+from components.execution.pointnet import PointNetConfig, PointNetEncoder
+from components.objects import Placement, Scene
+
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+#: The paper's observation table (state-based policy), per block.
+PAPER_BLOCKS = {"joint_angles": 22, "joint_velocities": 22, "joint_forces": 22, "fingertip_wrenches": 30,
+                "base_state": 12, "last_actions": 24, "joint_goals": 22, "joint_residues": 22,
+                "orientation_goal": 3, "orientation_residue": 3, "hand_feature": 256}
+PAPER_OBJECT_BLOCKS = {"state": 12, "pose_goal": 6, "pose_residue": 6, "feature": 256}
+
+
+@pytest.fixture(scope="module")
+def record(hand, library):
+    scene = Scene(objects=(Placement("cube", (0.0, -0.03, 0.02), IDENTITY),  # resting: 4 cm cube, 2.5 cm sphere
+                           Placement("sphere", (0.0, 0.035, 0.025), IDENTITY)))
+    p, R, q = preview_hand_pose(hand, scene, CameraConfig(), library)  # open hand above the objects, no contact
+    return GraspRecord(scene=scene, p=p, R=R, q=q.astype(np.float64))
+
+
+@pytest.fixture(scope="module")
+def env(hand, library, record, tmp_path_factory):
+    urdf = hand.export_urdf(tmp_path_factory.mktemp("urdf"))
+    encoder = PointNetEncoder(PointNetConfig()).eval()
+    environment = LiftEnv(hand, library, urdf, [record], LiftEnvConfig(), encoder)
+    yield environment
+    environment.close()
+
+
+def test_observation_blocks_are_the_papers_table():
+    blocks = dict(observation_blocks(LiftEnvConfig(), 2))
+    for name, dim in PAPER_BLOCKS.items():
+        assert blocks[name] == dim, name
+    for j in range(2):
+        for name, dim in PAPER_OBJECT_BLOCKS.items():
+            assert blocks[f"object_{j}_{name}"] == dim
+    assert observation_dim(LiftEnvConfig(), 2) == sum(PAPER_BLOCKS.values()) + 2 * sum(PAPER_OBJECT_BLOCKS.values()) == 998
+    # w/o Goal drops the goal and residue blocks
+    no_goal = LiftEnvConfig(goal_observations=False)
+    assert observation_dim(no_goal, 2) == 998 - (22 + 22 + 3 + 3) - 2 * (6 + 6)
+    assert not any("goal" in n or "residue" in n for n, _ in observation_blocks(no_goal, 2))
+
+
+def test_env_passes_torchrl_spec_checks(env):
+    check_env_specs(env)
+    assert env.observation_spec["observation"].shape == (998,)
+    assert env.action_spec.shape == (24,)
+
+
+def _block(obs: torch.Tensor, name: str) -> np.ndarray:
+    start = 0
+    for block, dim in observation_blocks(LiftEnvConfig(), 2):
+        if block == name:
+            return obs[start:start + dim].numpy()
+        start += dim
+    raise KeyError(name)
+
+
+def test_reset_puts_the_palm_frame_and_joints_at_the_pre_grasp(env, record):
+    td = env.reset()
+    p, R = env.world.palm_pose()
+    assert np.allclose(p, record.p, atol=1e-6) and np.allclose(R, record.R, atol=1e-6)
+    obs = td["observation"]
+    assert np.allclose(_block(obs, "joint_angles"), record.q, atol=1e-6)
+    assert np.allclose(_block(obs, "joint_goals"), record.q, atol=1e-6)
+    assert np.allclose(_block(obs, "joint_residues"), 0.0, atol=1e-6)
+    assert np.allclose(_block(obs, "base_state")[:3], record.p, atol=1e-6)
+    assert np.allclose(_block(obs, "object_0_pose_residue"), 0.0, atol=1e-6)
+    assert float(td["lift"]) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_zero_actions_hold_the_hand_and_leave_the_objects_on_the_table(env, record):
+    env.reset()
+    rollout = env.rollout(env.cfg.max_steps, policy=lambda td: td.set("action", torch.zeros(24)),
+                          break_when_any_done=False)
+    assert rollout.shape == (env.cfg.max_steps,)
+    assert bool(rollout["next", "truncated"][-1]) and not rollout["next", "terminated"].any()
+    state = env.world.read()
+    start = np.array([pl.position for pl in record.scene.objects])
+    assert np.abs(state.obj_pos - start).max() < 2e-3  # objects stay where they were put
+    assert np.abs(state.palm_pos - record.p).max() < 5e-3  # gravity compensation holds the hand
+    assert float(rollout["next", "lift"].abs().max()) < 2e-3
+    assert not rollout["next", "success"].any()
+
+
+def test_an_upward_base_force_lifts_the_hand(env, record):
+    env.reset()
+    up = torch.zeros(24)
+    up[20] = 0.5  # +z force
+    td = env.reset()
+    for _ in range(10):
+        td["action"] = up
+        td = env.step(td)["next"]
+    p, _ = env.world.palm_pose()
+    assert p[2] > record.p[2] + 0.01
+    assert np.allclose(_block(td["observation"], "last_actions"), up.numpy())
+
+
+def test_reward_terms_vanish_at_the_goal(env, record):
+    env.reset()
+    state = env.world.read()
+    terms = reward_terms(env.cfg, state, Goal.from_state(state), state.obj_pos[:, 2].copy())
+    for name in ("r_lift", "r_rot", "r_joint", "r_object", "reward"):
+        assert terms[name] == pytest.approx(0.0, abs=1e-6), name
+
+
+def test_euler_xyz_matches_scipy_extrinsic_xyz():
+    R = Rotation.random(64, random_state=0)
+    assert np.allclose(euler_xyz(R.as_matrix()), R.as_euler("xyz"), atol=1e-9)
+
+
+def test_records_with_different_object_counts_are_refused_with_a_clear_error(hand, library, record, tmp_path):
+    single = GraspRecord(scene=Scene(objects=record.scene.objects[:1]), p=record.p, R=record.R, q=record.q)
+    with pytest.raises(MultigraspError, match="one object count"):
+        LiftEnv(hand, library, tmp_path / "x.urdf", [record, single], LiftEnvConfig(), lambda x: x)
+    with pytest.raises(MultigraspError, match="no grasp records"):
+        LiftEnv(hand, library, tmp_path / "x.urdf", [], LiftEnvConfig(), lambda x: x)
