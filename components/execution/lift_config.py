@@ -63,6 +63,14 @@ class LiftEnvConfig(Section):
     success_height_m: float = Field(0.15, gt=0.0, description="Lift (m) above which every object must be for the success bonus (paper: 15 cm).")
     eval_success_height_m: float = Field(0.10, gt=0.0, description="Lift (m) every object must exceed at the end of an evaluation rollout (paper: 10 cm).")
 
+    # ------------------------------------------------------------------ evaluation trials
+    trial_position_noise_m: float = Field(
+        0.002, ge=0.0,
+        description="Evaluation: each trial moves the pre-grasp palm by N(0, this^2) per axis (m), seeded per (pose, trial): "
+        "the paper's 5 trials per pose differ by such perturbations.")
+    trial_joint_noise_rad: float = Field(
+        0.02, ge=0.0, description="Evaluation: ...and its 18 actuated joints by N(0, this^2) (rad), J0 coupled.")
+
     # ------------------------------------------------------------------ observation
     goal_observations: bool = Field(
         True,

@@ -87,9 +87,22 @@ class LiftEnv(EnvBase):
             return record
         return self.records[int(self._rng.integers(len(self.records)))]
 
-    def set_next_record(self, index: int) -> None:
-        """Make the next reset start from record ``index`` (evaluation), whatever ``record_order``."""
-        self._forced = index
+    def set_next_record(self, index: int, trial_seed: Optional[int] = None) -> None:
+        """Make the next reset start from record ``index`` (evaluation), whatever ``record_order``; with
+        ``trial_seed`` the pre-grasp is perturbed (``trial_position_noise_m``, ``trial_joint_noise_rad``)
+        by a generator seeded with it."""
+        self._forced = (index, trial_seed)
+
+    def _perturbed(self, record: GraspRecord, seed: int) -> GraspRecord:
+        rng = np.random.default_rng(seed)
+        q = np.asarray(record.q, float).copy()
+        act = self.world._actuated
+        q[act] += rng.normal(0.0, self.cfg.trial_joint_noise_rad, len(act))
+        q = np.clip(q, self.world.lower, self.world.upper)
+        q[self.world._follower] = np.clip(self.world._offset + self.world._ratio * q[self.world._leader],
+                                          self.world.lower[self.world._follower], self.world.upper[self.world._follower])
+        p = np.asarray(record.p, float) + rng.normal(0.0, self.cfg.trial_position_noise_m, 3)
+        return GraspRecord(scene=record.scene, p=p, R=record.R, q=q, meta=record.meta)
 
     # ------------------------------------------------------------------ EnvBase
     def _update_features(self, state: WorldState) -> None:
@@ -106,8 +119,13 @@ class LiftEnv(EnvBase):
 
     def _reset(self, tensordict: Optional[TensorDictBase] = None, **kwargs) -> TensorDictBase:
         forced = getattr(self, "_forced", None)
-        record = self.records[forced] if forced is not None else self._pick_record()
         self._forced = None
+        if forced is None:
+            record = self._pick_record()
+        else:
+            record = self.records[forced[0]]
+            if forced[1] is not None:
+                record = self._perturbed(record, forced[1])
         state = self.world.reset(record)
         self._goal = Goal.from_state(state)
         self._start_heights = state.obj_pos[:, 2].copy()

@@ -17,7 +17,7 @@ base force and torque in the world frame, times ``max_base_force_n`` / ``max_bas
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,7 @@ class GraspRecord:
     p: np.ndarray  # (3,) palm position (m)
     R: np.ndarray  # (3, 3) palm rotation
     q: np.ndarray  # (22,) joint angles (rad)
+    meta: dict = field(default_factory=dict)  # where it came from (scene id, split, ...)
 
 
 @dataclass

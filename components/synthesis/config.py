@@ -86,6 +86,22 @@ class SynthesisConfig(Section):
         "takes, on each of its ``contacts_per_object`` best fingers, the candidate with the lowest assignment score "
         "|d_O| + assign_align_scale_m * (1 + n_H . n_O) / 2 (energy.nearest_contacts) -- the conditional mode of the "
         "contacts given the pose, so the energy is a function of the pose alone and no switch is proposed.")
+    contact_reassign_every: int = Field(
+        0, ge=0,
+        description="Every this many MALA steps (0 = never), each object's contacts are reassigned for the current "
+        "pose by energy.best_contacts: every finger offers its candidate of lowest assignment score, every set of "
+        "contacts_per_object fingers is scored by the contact-dependent energy w_fc E_fc + w_dist E_dist + w_align "
+        "E_align, and the best set replaces the current contacts if it scores lower (a greedy Gibbs-like move; the "
+        "row's energy never rises). Also applied before, and with contact_reassign_refine during, refinement.")
+    contact_reassign_refine: bool = Field(
+        False,
+        description="With contact_reassign_every > 0, also reassign every contact_reassign_every refinement steps "
+        "(otherwise only once, before refinement).")
+    w_fc_ramp_fraction: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="Staged objective: during the first fraction of the MALA steps the E_fc weight ramps linearly "
+        "from 0 to w_fc (in 10 piecewise-constant levels; the state is re-evaluated at each level), so the hand first "
+        "approaches the objects under E_dist / E_pen / E_align and force closure is enforced afterwards. 0 = off.")
     assign_align_scale_m: float = Field(
         0.02, ge=0.0,
         description="With contact_assignment='nearest': distance (m) added to the score of a candidate whose hand "
@@ -143,12 +159,30 @@ class SynthesisConfig(Section):
     filter_fc: float = Field(0.25, ge=0.0, description="Accept if the largest per-object E_fc is below this (official: 0.25).")
     filter_contact_distance_m: float = Field(
         0.005, gt=0.0, description="Accept if every contact point is within this distance of its object's surface (official: 5 mm).")
+    filter_contact_distance_reduce: Literal["max", "mean"] = Field(
+        "max",
+        description="How the contact distances enter the contact-distance criterion: 'max' = every contact within "
+        "filter_contact_distance_m (this project's stricter rule); 'mean' = each object's mean contact distance "
+        "within it (the official release: surf_dist.mean(-1).max(-1)).")
     filter_penetration_m: float = Field(
         0.005, gt=0.0,
         description="Accept if the deepest sampled penetration (hand-object both ways, hand-table, self) is below this (official: 5 mm).")
     filter_prior: float = Field(0.1, ge=0.0, description="Accept if E_prior (rad of joint-limit violation) is below this (official: 0.1).")
 
     # ------------------------------------------------------------------ initialisation
+    init_mode: Literal["sphere", "pair"] = Field(
+        "sphere",
+        description="'sphere': palm on a spherical cap around the objects' bounding sphere, aimed at the centroid "
+        "(initializations module docstring). 'pair' (scenes of >= 2 objects; one object falls back to 'sphere'): "
+        "palm centre above the centroid, init_pair_height_m above the highest object top, palm facing down within "
+        "init_max_polar_deg / init_jitter_deg, fingers (+z) across the line joining the two objects farthest apart "
+        "(random sign), so ff/mf reach one object and rf/lf the other.")
+    init_pair_height_m: tuple[float, float] = Field(
+        (0.01, 0.03),
+        description="With init_mode='pair': range (m) of the palm centre's height above the highest object point.")
+    init_pair_roll: Literal["across", "along", "uniform"] = Field(
+        "across",
+        description="With init_mode='pair': fingers across the object line, along it, or at a uniform roll.")
     init_max_polar_deg: float = Field(
         60.0, ge=0.0, le=90.0,
         description="Approach directions are uniform on the spherical cap above the objects within this angle of +z.")

@@ -220,6 +220,64 @@ def nearest_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tens
         return best_index.gather(-1, chosen)
 
 
+def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor, contacts: Tensor,
+                  w_fc: Optional[float] = None, w_dist: Optional[float] = None) -> Tensor:
+    """FC-aware reassignment of the contacts for a fixed pose (``contact_reassign_every``): the conditional
+    mode of the contact-dependent part of E over a small candidate set.  For object j (in order):
+
+    1. every finger f (``GraspProblem.finger_of``, the palm is one) offers its candidate of lowest
+       :func:`assignment_scores` k_jf, among candidates no earlier object took;
+    2. every set S of ``contacts_per_object`` distinct fingers is scored by
+       e_j(S) = w_fc E_fc(S) + w_dist sum_{k in S} |d_j(c_k)| + w_align E_align(S)
+       (the terms of E that depend on the contacts; E_pen and E_prior depend on the pose only);
+    3. object j takes the best set, unless its current contacts score lower (a row's energy never rises).
+
+    ``w_fc`` / ``w_dist`` override the config's weights (MALA ramp, refinement).
+    points, hand_normals (B, K, 3) (detached), contacts (B, n_obj, C) -> (B, n_obj, C) long."""
+    import itertools
+
+    objects, cfg = problem.objects, problem.cfg
+    w_fc = cfg.w_fc if w_fc is None else w_fc
+    w_dist = cfg.w_dist if w_dist is None else w_dist
+    finger_of = problem.finger_of
+    n_fingers, per = int(finger_of.max()) + 1, cfg.contacts_per_object
+    batch, n_cand = points.shape[:2]
+    sets = torch.tensor(list(itertools.combinations(range(n_fingers), per)), device=points.device)  # (T, C)
+    out = contacts.clone()
+    taken = torch.zeros(batch, n_cand, dtype=torch.bool, device=points.device)
+    rows = torch.arange(batch, device=points.device)
+
+    def score(j: int, index: Tensor) -> Tensor:  # index (B, T, C) -> e_j (B, T)
+        n_sets = index.shape[1]
+        pts = points.gather(1, index.reshape(batch, -1, 1).expand(-1, -1, 3)).reshape(batch * n_sets, per, 3)
+        nrm = hand_normals.gather(1, index.reshape(batch, -1, 1).expand(-1, -1, 3)).reshape(batch * n_sets, per, 3)
+        d, n = objects.object_sdf_and_normal(j, pts)
+        e = (w_fc * force_closure_error(pts, n, objects.positions[j], problem.lever_lengths[j], cfg.fc_margin,
+                                        cfg.fc_friction)
+             + w_dist * contact_distance_energy(d) + cfg.w_align * contact_alignment_energy(nrm, n))
+        return e.reshape(batch, n_sets)
+
+    with torch.no_grad():
+        d_all, n_all = objects.sdf_and_normal(points)  # (B, K, n_obj), (B, K, n_obj, 3)
+        for j in range(objects.n_objects):
+            assign = d_all[..., j].abs() + cfg.assign_align_scale_m * (1.0 + (hand_normals * n_all[:, :, j]).sum(-1)) / 2.0
+            assign = assign.masked_fill(taken, float("inf"))  # (B, K)
+            best = []
+            for f in range(n_fingers):
+                members = (finger_of == f).nonzero().squeeze(-1)
+                best.append(members[assign[:, members].argmin(-1)])
+            best = torch.stack(best, -1)  # (B, F)
+            options = best[:, sets]  # (B, T, C)
+            e_sets = score(j, options)
+            value, arg = e_sets.min(-1)  # (B,)
+            current = score(j, out[:, j].unsqueeze(1)).squeeze(1)
+            clash = taken.gather(1, out[:, j]).any(-1)  # current contacts taken by an earlier object
+            use = (value < current) | clash
+            out[:, j] = torch.where(use.unsqueeze(-1), options[rows, arg], out[:, j])
+            taken.scatter_(1, out[:, j], True)
+    return out
+
+
 def posed_in_world(prims: Primitives, p: Tensor, R: Tensor) -> Primitives:
     """Palm-frame primitives moved to the world by (p, R):  x_w = R x + p,  rot_w = R rot."""
     def move(x: Tensor) -> Tensor:  # (B, G, 3)
@@ -281,9 +339,11 @@ def hand_points_object_distances(objects: SceneObjects, points: Tensor) -> Tenso
 
 
 # ============================================================================ the total
-def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None) -> tuple[Tensor, dict]:
+def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None,
+           w_fc: Optional[float] = None) -> tuple[Tensor, dict]:
     """E(H, O) of the module docstring for flat poses x (B, 31) (:mod:`components.synthesis.pose`) and
-    contacts (B, n_obj, C).  ``w_dist`` overrides ``cfg.w_dist`` (the refinement raises it).
+    contacts (B, n_obj, C).  ``w_dist`` overrides ``cfg.w_dist`` (the refinement raises it), ``w_fc``
+    overrides ``cfg.w_fc`` (the MALA ramp of ``w_fc_ramp_fraction``).
 
     Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior`` (unweighted, (B,));
     ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
@@ -295,6 +355,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     """
     cfg, hand, objects = problem.cfg, problem.hand, problem.objects
     w_dist = cfg.w_dist if w_dist is None else w_dist
+    w_fc = cfg.w_fc if w_fc is None else w_fc
     p, R, q_param = unpack(x)
     q = problem.effective_joints(q_param)  # (B, 22)
     batch = x.shape[0]
@@ -340,7 +401,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     prior = joint_limit_energy(hand, q)
     fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
     align_total = align_per_object.sum(-1)
-    total = (cfg.w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
+    total = (w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
              + cfg.w_align * align_total)
 
     with torch.no_grad():
@@ -364,11 +425,11 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 
 
 def energy_and_grad(problem: GraspProblem, x: Tensor, contacts: Tensor,
-                    w_dist: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
+                    w_dist: Optional[float] = None, w_fc: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
     """Energy (B,), its gradient wrt x (B, D) and the detached terms.  Rows are independent, so the
     gradient of the batch sum is every row's own gradient."""
     with torch.enable_grad():
         x = x.detach().requires_grad_(True)
-        total, terms = energy(problem, x, contacts, w_dist)
+        total, terms = energy(problem, x, contacts, w_dist, w_fc)
         (grad,) = torch.autograd.grad(total.sum(), x)
     return total.detach(), grad, {k: v.detach() for k, v in terms.items()}

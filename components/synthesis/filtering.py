@@ -4,7 +4,8 @@ A grasp is accepted when every criterion holds (thresholds from :class:`Synthesi
 
 * ``fc``:               max over objects of E_fc < ``filter_fc`` (0.25)
 * ``contact_distance``: max over all contacts of |d_O(c)| < ``filter_contact_distance_m`` (5 mm) -- every
-  contact on its object (the official release averaged each object's contacts: this is stricter)
+  contact on its object -- or, with ``filter_contact_distance_reduce='mean'``, the max over objects of the
+  mean |d_O| of the object's contacts, as the official release (less strict)
 * ``penetration``:      the deepest sampled penetration -- object points in the hand, hand points in the
   objects, hand below the table, hand self-penetration -- < ``filter_penetration_m`` (5 mm)
 * ``prior``:            E_prior (rad beyond the joint limits) < ``filter_prior`` (0.1)
@@ -27,6 +28,15 @@ FILTER_REASONS = ("non_finite", "fc", "contact_distance", "penetration", "prior"
 ACCEPTED = "accepted"
 
 
+def contact_distance_for_filter(terms: dict, cfg: SynthesisConfig) -> Tensor:
+    """The distance the contact criterion tests (B,): the largest |d_O| over all contacts
+    (``filter_contact_distance_reduce='max'``) or the largest over objects of the mean |d_O| of the object's
+    contacts (``'mean'``, the official ``surf_dist.mean(-1).max(-1)``)."""
+    if cfg.filter_contact_distance_reduce == "mean":
+        return terms["contact_distance_per_object"].amax(-1)
+    return terms["contact_distance_max"]
+
+
 def filter_checks(terms: dict, cfg: SynthesisConfig) -> dict[str, Tensor]:
     """Per criterion, the rows that FAIL it (B,) bool (module docstring)."""
     finite = torch.ones_like(terms["prior"], dtype=torch.bool)
@@ -35,7 +45,7 @@ def filter_checks(terms: dict, cfg: SynthesisConfig) -> dict[str, Tensor]:
     return {
         "non_finite": ~finite,
         "fc": ~(terms["fc_per_object"].amax(-1) < cfg.filter_fc),
-        "contact_distance": ~(terms["contact_distance_max"] < cfg.filter_contact_distance_m),
+        "contact_distance": ~(contact_distance_for_filter(terms, cfg) < cfg.filter_contact_distance_m),
         "penetration": ~(terms["penetration_depth_max"] < cfg.filter_penetration_m),
         "prior": ~(terms["prior"] < cfg.filter_prior),
     }

@@ -12,6 +12,9 @@ Every candidate starts with its palm facing the objects from above the table:
 4. actuated joints q = q_open + f (q_u - q_open) with q_u uniform in the joint limits and f =
    ``init_joint_fraction`` (the official release draws the lower half of each range, which bends
    symmetric joints such as the abductions to one side), coupled J0 from J1;
+   With ``init_mode='pair'`` (scenes of two or more objects) steps 1-3 are replaced by
+   :func:`pair_palm_poses`: the palm faces down above the centroid with the fingers across (or along) the
+   line joining the two objects farthest apart;
 5. contacts: ``contacts_per_object`` distinct candidate indices per object, all distinct in the row and,
    with ``contact_distinct_fingers``, the contacts of one object on different fingers.
 """
@@ -78,6 +81,50 @@ def palm_rotations(u: Tensor, roll: Tensor) -> Tensor:
     return torch.stack([x, u, z], dim=-1)
 
 
+def pair_palm_rotations(line: Tensor, sign: Tensor, roll_mode: str, generator: torch.Generator) -> Tensor:
+    """Palm frames facing straight down (palm normal -y = -z_world, so y = +z_world) with the fingers (+z)
+    horizontal: across the horizontal unit vector ``line`` (z = sign * (e_z x line)), along it
+    (z = sign * line) or at a uniform roll (``roll_mode`` 'across' / 'along' / 'uniform').
+    line (3,), sign (B,) of +-1 -> R (B, 3, 3) with columns (x, y, z), x = y x z."""
+    batch = sign.shape[0]
+    up = torch.zeros(batch, 3, dtype=line.dtype, device=line.device)
+    up[:, 2] = 1.0
+    if roll_mode == "uniform":
+        return palm_rotations(up, _uniform(batch, generator, line, 0.0, 2.0 * math.pi))
+    direction = line if roll_mode == "along" else torch.cross(up[0], line, dim=-1)
+    z = sign[:, None] * direction.expand(batch, 3)
+    x = torch.cross(up, z, dim=-1)
+    return torch.stack([x, up, z], dim=-1)
+
+
+def object_line(objects) -> Tensor:
+    """Horizontal unit vector from one to the other of the two objects whose centres are farthest apart (3,)."""
+    pos = objects.positions
+    gaps = (pos[:, None, :2] - pos[None, :, :2]).norm(dim=-1)
+    i, j = divmod(int(gaps.argmax()), pos.shape[0])
+    d = torch.zeros(3, dtype=pos.dtype, device=pos.device)
+    d[:2] = pos[j, :2] - pos[i, :2]
+    return d / d.norm().clamp_min(1e-9)
+
+
+def pair_palm_poses(problem: GraspProblem, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """``init_mode='pair'``: palm rotations (B, 3, 3) of :func:`pair_palm_rotations` (random sign, then the
+    random jitter rotation of ``init_jitter_deg``) and palm centres (B, 3) above the objects' centroid at
+    height U[init_pair_height_m] above the highest object point.  -> (p (B, 3), R (B, 3, 3))."""
+    hand, objects, cfg = problem.hand, problem.objects, problem.cfg
+    batch, like = cfg.batch_size, objects.positions
+    sign = torch.where(_uniform(batch, generator, like) < 0.5, -1.0, 1.0).to(like.dtype)
+    rot = pair_palm_rotations(object_line(objects), sign, cfg.init_pair_roll, generator)
+    omega = torch.randn(batch, 3, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
+    rot = axis_angle_to_matrix(omega * math.radians(cfg.init_jitter_deg)) @ rot
+    top = max(float(objects.mesh_vertices(j)[:, 2].max()) for j in range(objects.n_objects))
+    low, high = cfg.init_pair_height_m
+    centre = objects.centroid.expand(batch, 3).clone()
+    centre[:, 2] = top + _uniform(batch, generator, like, low, high)
+    p = centre - rot @ palm_centre_local(hand)
+    return p, rot
+
+
 def initial_joint_angles(hand: HandModel, n: int, fraction: float, generator: torch.Generator) -> Tensor:
     """q = q_open + f (q_u - q_open) on the 18 actuated joints, q_u uniform in the limits; J0 coupled.  -> (n, 22)."""
     uniform = hand.actuated(hand.sample_joint_angles(n, generator))  # (n, 18)
@@ -97,15 +144,18 @@ def initial_poses(problem: GraspProblem, generator: torch.Generator) -> tuple[Te
     hand, objects, cfg = problem.hand, problem.objects, problem.cfg
     batch = cfg.batch_size
     like = objects.positions
-    u = approach_directions(batch, math.radians(cfg.init_max_polar_deg), generator, like)  # (B, 3)
-    roll = _uniform(batch, generator, like, 0.0, 2.0 * math.pi)
-    rot = palm_rotations(u, roll)  # (B, 3, 3)
-    omega = torch.randn(batch, 3, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
-    rot = axis_angle_to_matrix(omega * math.radians(cfg.init_jitter_deg)) @ rot
-
-    distance = objects.bounding_radius + _uniform(batch, generator, like, cfg.init_distance_min_m, cfg.init_distance_max_m)
-    palm_centre_world = objects.centroid + distance[:, None] * u  # (B, 3)
-    p = palm_centre_world - rot @ palm_centre_local(hand)  # (B, 3): the palm centre lands on palm_centre_world
+    if cfg.init_mode == "pair" and objects.n_objects >= 2:
+        p, rot = pair_palm_poses(problem, generator)
+    else:
+        u = approach_directions(batch, math.radians(cfg.init_max_polar_deg), generator, like)  # (B, 3)
+        roll = _uniform(batch, generator, like, 0.0, 2.0 * math.pi)
+        rot = palm_rotations(u, roll)  # (B, 3, 3)
+        omega = torch.randn(batch, 3, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
+        rot = axis_angle_to_matrix(omega * math.radians(cfg.init_jitter_deg)) @ rot
+        distance = objects.bounding_radius + _uniform(batch, generator, like, cfg.init_distance_min_m,
+                                                      cfg.init_distance_max_m)
+        palm_centre_world = objects.centroid + distance[:, None] * u  # (B, 3)
+        p = palm_centre_world - rot @ palm_centre_local(hand)  # (B, 3): the palm centre lands on palm_centre_world
     q = initial_joint_angles(hand, batch, cfg.init_joint_fraction, generator)
     contacts = random_distinct_contacts(batch, objects.n_objects, cfg.contacts_per_object, problem.n_candidates,
                                         generator, hand.device)

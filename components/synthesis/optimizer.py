@@ -28,6 +28,7 @@ contacts fixed, keeping each row's lowest-energy pose.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -37,8 +38,8 @@ import torch
 from torch import Tensor
 
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import CONTACT_INDICES, GraspProblem, energy_and_grad
-from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION
+from components.synthesis.energy import CONTACT_INDICES, GraspProblem, best_contacts, energy_and_grad
+from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION, unpack
 
 #: progress(step, total, info): called every ``progress_every`` steps with a dict of scalars
 #: (stage, energy_mean, accept_rate, step_size, temperature, elapsed_s, eta_s).
@@ -55,6 +56,24 @@ def temperature_at(t: int, cfg: SynthesisConfig) -> float:
     """T_t = T_0 * decay^floor(t / P_T)  (module docstring)."""
     _, period = cfg.schedule_periods()
     return cfg.temperature * cfg.temperature_decay ** (t // period)
+
+
+def fc_weight_at(t: int, cfg: SynthesisConfig) -> float:
+    """Staged objective (``w_fc_ramp_fraction`` = f): w_fc(t) = w_fc * floor(10 t / (f N)) / 10 for t < f N
+    (N = ``mala_steps``), w_fc afterwards -- ten piecewise-constant levels from 0."""
+    ramp = cfg.w_fc_ramp_fraction * cfg.mala_steps
+    if ramp <= 0.0 or t >= ramp:
+        return cfg.w_fc
+    return cfg.w_fc * math.floor(10.0 * t / ramp) / 10.0
+
+
+def reassign_contacts(problem: GraspProblem, x: Tensor, contacts: Tensor, w_fc: Optional[float] = None,
+                      w_dist: Optional[float] = None) -> Tensor:
+    """:func:`~components.synthesis.energy.best_contacts` at the poses x (B, D).  -> contacts (B, n_obj, C)."""
+    with torch.no_grad():
+        p, R, q = unpack(x)
+        points, normals = problem.hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
+        return best_contacts(problem, points, normals, contacts, w_fc=w_fc, w_dist=w_dist)
 
 
 def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator,
@@ -136,7 +155,8 @@ class Annealer:
 
     def __init__(self, problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torch.Generator):
         self.problem, self.cfg, self.generator = problem, problem.cfg, generator
-        energy, grad, terms = energy_and_grad(problem, x, contacts)
+        self.w_fc = fc_weight_at(0, self.cfg)
+        energy, grad, terms = energy_and_grad(problem, x, contacts, w_fc=self.w_fc)
         self.state = AnnealerState(x.detach(), terms[CONTACT_INDICES], energy, grad, terms)
         self.grad_sq_ema = self._grad_sq(grad)  # (D,) or (B, D), initialised with the first gradient
         self.scale = torch.ones_like(x[0])  # (D,) per-group step multipliers
@@ -184,7 +204,7 @@ class Annealer:
             raise RuntimeError("accept_step needs a proposal: call try_step first")
         x_new, contacts_new = self._proposal
         self._proposal = None
-        energy_new, grad_new, terms_new = energy_and_grad(self.problem, x_new, contacts_new)
+        energy_new, grad_new, terms_new = energy_and_grad(self.problem, x_new, contacts_new, w_fc=self.w_fc)
         state = self.state
         temperature = temperature_at(self.step, self.cfg)
         alpha = torch.rand(state.energy.shape, generator=self.generator, dtype=state.energy.dtype,
@@ -199,7 +219,23 @@ class Annealer:
         state.terms = {k: torch.where(accept.reshape(-1, *[1] * (v.dim() - 1)), terms_new[k], v)
                        for k, v in state.terms.items()}
         self.step += 1
+        self._between_steps()
         return accept
+
+    def _between_steps(self) -> None:
+        """Schedule changes after step t: a new E_fc weight level (``w_fc_ramp_fraction``) and the periodic
+        contact reassignment (``contact_reassign_every``); either re-evaluates the state's energy and gradient."""
+        cfg, state = self.cfg, self.state
+        w_fc = fc_weight_at(self.step, cfg)
+        reassign = cfg.contact_reassign_every > 0 and self.step % cfg.contact_reassign_every == 0 \
+            and cfg.contact_assignment != "nearest"
+        if w_fc == self.w_fc and not reassign:
+            return
+        self.w_fc = w_fc
+        if reassign:
+            state.contacts = reassign_contacts(self.problem, state.x, state.contacts, w_fc=w_fc)
+        state.energy, state.grad, state.terms = energy_and_grad(self.problem, state.x, state.contacts, w_fc=w_fc)
+        state.contacts = state.terms[CONTACT_INDICES]
 
 
 def _report(progress: Optional[ProgressFn], cfg: SynthesisConfig, step: int, total: int, start: float, info: dict) -> None:
@@ -227,21 +263,32 @@ def run_mala(problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torc
     return annealer.state, stats
 
 
-def refine(problem: GraspProblem, x: Tensor, contacts: Tensor, progress: Optional[ProgressFn] = None) -> tuple[Tensor, dict]:
-    """Adam on E (with E_dist weighted by ``refine_w_dist``), contacts fixed, ``refine_steps`` steps.
-    With ``keep_best`` each row returns its lowest-energy pose.  -> (x (B, D), stats)."""
+def refine(problem: GraspProblem, x: Tensor, contacts: Tensor,
+           progress: Optional[ProgressFn] = None) -> tuple[Tensor, Tensor, dict]:
+    """Adam on E (with E_dist weighted by ``refine_w_dist``), contacts fixed (or reassigned by
+    ``contact_reassign_every`` / ``contact_reassign_refine``), ``refine_steps`` steps.  With ``keep_best``
+    each row returns its lowest-energy pose and the contacts it had there.
+    -> (x (B, D), contacts (B, n_obj, C), stats)."""
     cfg = problem.cfg
     start = time.perf_counter()
+    reassign = cfg.contact_reassign_every > 0 and cfg.contact_assignment != "nearest"
+    if reassign:
+        contacts = reassign_contacts(problem, x, contacts, w_dist=cfg.refine_w_dist)
     x = x.detach().clone().requires_grad_(True)
     optimizer = torch.optim.Adam([x], lr=cfg.refine_lr)
     best_x = x.detach().clone()
     best_energy = torch.full(x.shape[:1], float("inf"), dtype=x.dtype, device=x.device)  # (B,)
+    best_contacts_ = contacts
     for t in range(cfg.refine_steps):
-        energy, grad, _ = energy_and_grad(problem, x.detach(), contacts, w_dist=cfg.refine_w_dist)
+        if reassign and cfg.contact_reassign_refine and t > 0 and t % cfg.contact_reassign_every == 0:
+            contacts = reassign_contacts(problem, x.detach(), contacts, w_dist=cfg.refine_w_dist)
+        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, w_dist=cfg.refine_w_dist)
+        contacts = terms[CONTACT_INDICES]
         if cfg.keep_best:
             better = energy < best_energy  # False for non-finite energies
             best_energy = torch.where(better, energy, best_energy)
             best_x = torch.where(better.unsqueeze(-1), x.detach(), best_x)
+            best_contacts_ = torch.where(better.reshape(-1, 1, 1), contacts, best_contacts_)
         optimizer.zero_grad()
         x.grad = grad
         optimizer.step()
@@ -249,6 +296,8 @@ def refine(problem: GraspProblem, x: Tensor, contacts: Tensor, progress: Optiona
                 {"stage": "refine", "energy_mean": float(energy.mean())})
     x = x.detach()
     if cfg.keep_best and cfg.refine_steps > 0:
-        energy, _, _ = energy_and_grad(problem, x, contacts, w_dist=cfg.refine_w_dist)
-        x = torch.where((energy < best_energy).unsqueeze(-1), x, best_x)
-    return x, {"refine_seconds": time.perf_counter() - start}
+        energy, _, terms = energy_and_grad(problem, x, contacts, w_dist=cfg.refine_w_dist)
+        last = (energy < best_energy)
+        x = torch.where(last.unsqueeze(-1), x, best_x)
+        contacts = torch.where(last.reshape(-1, 1, 1), terms[CONTACT_INDICES], best_contacts_)
+    return x, contacts, {"refine_seconds": time.perf_counter() - start}

@@ -83,8 +83,8 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
     problem = GraspProblem.build(hand, objects, cfg)
     x, contacts = initial_poses(problem, generator)
     state, mala_stats = run_mala(problem, x, contacts, generator, progress)
-    x, refine_stats = refine(problem, state.x, state.contacts, progress)
-    energy, _, terms = energy_and_grad(problem, x, state.contacts)
+    x, contacts, refine_stats = refine(problem, state.x, state.contacts, progress)
+    energy, _, terms = energy_and_grad(problem, x, contacts)
     contacts = terms.pop(CONTACT_INDICES)  # the input ones, or those chosen by contact_assignment='nearest'
     contact_points = gather_contacts(terms.pop(CANDIDATE_POINTS), contacts)  # (B, n_obj, C, 3)
     accepted, reasons = filter_grasps(terms, cfg)

@@ -1,0 +1,81 @@
+"""Evaluating lift policies (paper §"Execution Policy", protocol of §"Experiments").
+
+Success of one trial: at the end of the episode every object is more than ``eval_success_height_m``
+(10 cm) above where it started.  Each pose gets ``trials`` trials (5 in the paper), each from the pose
+perturbed by a generator seeded with (seed, pose, trial) (:meth:`LiftEnv.set_next_record`), so two
+evaluations of one policy see the same trials.  ``succ`` = successful trials / all trials.
+
+Policies are callables TensorDict -> TensorDict writing ``action``: a trained actor (run in its
+deterministic mode, the mean action) or :class:`ScriptedLift`, the paper's "w/o RL" baseline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Optional
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from components.execution.lift_env import N_ACTIONS, LiftEnv
+from components.execution.lift_sim import N_JOINT_ACTIONS
+
+#: Index of the +z base force in the action (after the 18 joint deltas: fx, fy, fz, tx, ty, tz).
+FORCE_Z = N_JOINT_ACTIONS + 2
+
+
+class ScriptedLift:
+    """The "w/o RL" baseline: keep the pre-grasp joint targets and push the base straight up with
+    ``force_fraction`` of ``max_base_force_n`` (lift directly from the pre-grasp)."""
+
+    def __init__(self, force_fraction: float = 0.5):
+        self.action = torch.zeros(N_ACTIONS)
+        self.action[FORCE_Z] = force_fraction
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        return td.set("action", self.action.clone())
+
+
+@dataclass
+class LiftEvaluation:
+    """Result of :func:`evaluate_lift`: ``succ`` over all trials, per-pose success counts, final lifts."""
+
+    succ: float
+    n_poses: int
+    trials: int
+    successes_per_pose: list[int] = field(default_factory=list)
+    final_lifts: list[float] = field(default_factory=list)
+
+    def row(self, setting: str) -> dict:
+        return {"setting": setting, "succ": round(self.succ, 4), "n_poses": self.n_poses, "trials": self.trials}
+
+
+def trial_seed(seed: int, pose: int, trial: int) -> int:
+    """Seed of one trial's perturbation (distinct for every (pose, trial) of one evaluation seed)."""
+    return (seed * 1_000_003 + pose) * 101 + trial
+
+
+def evaluate_lift(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase], n_poses: Optional[int] = None,
+                  trials: int = 5, seed: int = 0,
+                  on_rollout: Optional[Callable[[int, int, TensorDictBase], None]] = None) -> LiftEvaluation:
+    """Run ``trials`` perturbed episodes from each of the first ``n_poses`` records of ``env`` (module
+    docstring).  ``on_rollout(pose, trial, rollout)`` sees every rollout (e.g. to keep a few for GIFs)."""
+    n = len(env.records) if n_poses is None else min(n_poses, len(env.records))
+    per_pose, lifts = [], []
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        for pose in range(n):
+            wins = 0
+            for trial in range(trials):
+                env.set_next_record(pose, trial_seed(seed, pose, trial))
+                rollout = env.rollout(env.cfg.max_steps, policy=policy, break_when_any_done=True)
+                last = rollout[-1]
+                wins += int(bool(last["next", "success"]))
+                lifts.append(float(last["next", "lift"]))
+                if on_rollout is not None:
+                    on_rollout(pose, trial, rollout)
+            per_pose.append(wins)
+    total = n * trials
+    return LiftEvaluation(succ=sum(per_pose) / total if total else 0.0, n_poses=n, trials=trials,
+                          successes_per_pose=per_pose, final_lifts=lifts)

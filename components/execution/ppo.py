@@ -1,0 +1,244 @@
+"""PPO for the lift policy with TorchRL (paper §"Learning a Multi-Object Lifting Policy"), in the style of
+torchrl's ``sota-implementations/ppo``: a tanh-Gaussian actor and a value net (MLPs over the observation,
+each behind a running observation normaliser), ``ClipPPOLoss`` + ``GAE``, a ``Collector`` (1 worker,
+in process) or ``MultiSyncCollector`` (several processes), checkpoints with resume.
+
+    result = train_ppo(env_factory, PPOConfig(...), checkpoint_path, progress=print)
+    result.actor, result.history                       # [{'iteration', 'frames', 'reward', 'success', ...}]
+
+Resume: a checkpoint (actor, critic, normaliser, optimiser, iteration, frames, history) is written
+atomically every ``checkpoint_every`` iterations and at the end; ``train_ppo`` on an existing
+checkpoint continues from its iteration (a finished one returns at once).  A corrupt checkpoint is a
+one-line error naming the file to delete.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import torch
+from pydantic import Field, PositiveInt
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.envs import EnvBase
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from components.config_base import Section
+from components.errors import MultigraspError
+from components.fileio import atomic_write_bytes
+
+#: progress(iteration, total, info) after every iteration (info: reward, success, losses, eta_s, ...).
+ProgressFn = Callable[[int, int, dict], None]
+
+
+class PPOConfig(Section):
+    """PPO hyper-parameters (defaults: torchrl's MuJoCo PPO recipe, scaled to a 2-core CPU)."""
+
+    iterations: int = Field(50, ge=1, description="Collector batches (PPO iterations) to train for.")
+    frames_per_batch: int = Field(2000, ge=1, description="Environment steps collected per iteration (all workers together).")
+    workers: int = Field(
+        1, ge=1,
+        description="Collector processes: 1 runs the env in this process (Collector); more use MultiSyncCollector "
+        "(2 processes gave 1.9x on 2 cores).")
+    epochs: int = Field(5, ge=1, description="Passes over each batch.")
+    minibatch_size: int = Field(250, ge=1, description="Transitions per gradient step.")
+    lr: float = Field(3e-4, gt=0.0, description="Adam learning rate of actor and critic.")
+    max_grad_norm: float = Field(1.0, gt=0.0, description="Gradient-norm clip.")
+    gamma: float = Field(0.99, gt=0.0, le=1.0, description="Discount.")
+    lmbda: float = Field(0.95, ge=0.0, le=1.0, description="GAE lambda.")
+    clip_epsilon: float = Field(0.2, gt=0.0, description="PPO ratio clip.")
+    entropy_coeff: float = Field(0.0, ge=0.0, description="Entropy bonus weight.")
+    critic_coeff: float = Field(0.5, ge=0.0, description="Value loss weight.")
+    hidden: tuple[PositiveInt, ...] = Field((256, 256), description="Hidden widths of the actor and critic MLPs.")
+    init_scale: float = Field(0.5, gt=0.0, description="Initial action standard deviation (before the tanh), so early lifts stay gentle.")
+    normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
+    checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
+    seed: int = Field(0, ge=0, description="Seed of the networks and the collectors.")
+
+
+# ============================================================================ networks
+class RunningNorm(nn.Module):
+    """y = (x - mean) / sqrt(var + eps) with mean / var running over every observation seen by :meth:`update`
+    (parallel-variance merge of batches); identity until the first update."""
+
+    def __init__(self, dim: int, eps: float = 1e-6):
+        super().__init__()
+        self.eps = eps
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("var", torch.ones(dim))
+        self.register_buffer("count", torch.zeros(()))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        x = x.reshape(-1, x.shape[-1]).to(self.mean)
+        n = x.shape[0]
+        mean, var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = mean - self.mean
+        self.var.copy_((self.var * self.count + var * n + delta * delta * self.count * n / total) / total)
+        self.mean.add_(delta * n / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return ((x - self.mean) / torch.sqrt(self.var + self.eps)).clamp(-10.0, 10.0)
+
+
+def _mlp(dim_in: int, dim_out: int, cfg: PPOConfig) -> MLP:
+    return MLP(in_features=dim_in, out_features=dim_out, num_cells=list(cfg.hidden), activation_class=nn.Tanh)
+
+
+def build_actor_critic(env: EnvBase, cfg: PPOConfig) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm]:
+    """Actor (tanh-Gaussian over the action box) and critic, sharing one observation normaliser."""
+    torch.manual_seed(cfg.seed)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    act_dim = env.action_spec.shape[-1]
+    norm = RunningNorm(obs_dim)
+    head = _mlp(obs_dim, 2 * act_dim, cfg)
+    with torch.no_grad():  # NormalParamExtractor: scale = biased softplus(x); start near init_scale
+        head[-1].weight.mul_(0.01)
+        head[-1].bias.zero_()
+    actor_net = nn.Sequential(norm, head, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}"))
+    actor = ProbabilisticActor(
+        TensorDictModule(actor_net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"], spec=env.action_spec, distribution_class=TanhNormal,
+        distribution_kwargs={"low": env.action_spec.space.low, "high": env.action_spec.space.high},
+        return_log_prob=True)
+    critic = ValueOperator(nn.Sequential(norm, _mlp(obs_dim, 1, cfg)), in_keys=["observation"])
+    return actor, critic, norm
+
+
+# ============================================================================ training
+@dataclass
+class PPOResult:
+    actor: ProbabilisticActor
+    critic: ValueOperator
+    history: list[dict] = field(default_factory=list)
+    resumed_from: int = 0  # iterations found in the checkpoint at start
+
+
+def _save(path: Path, actor, critic, optimizer, iteration: int, frames: int, history: list, cfg: PPOConfig) -> None:
+    buffer = io.BytesIO()
+    torch.save({"format": "multigrasp-ppo", "version": 1, "actor": actor.state_dict(), "critic": critic.state_dict(),
+                "optimizer": optimizer.state_dict(), "iteration": iteration, "frames": frames, "history": history,
+                "config": cfg.model_dump(mode="json")}, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_checkpoint(path: Path) -> dict:
+    """The checkpoint dict (one-line error if it is not a readable PPO checkpoint)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 -- any unreadable file gets the same advice
+        raise MultigraspError(f"PPO checkpoint {path} is corrupt ({type(exc).__name__}); delete it to retrain "
+                              "from scratch") from None
+    if not isinstance(state, dict) or state.get("format") != "multigrasp-ppo":
+        raise MultigraspError(f"{path} is not a PPO checkpoint of this project; delete it to retrain")
+    return state
+
+
+def _make_collector(env_factory: Callable[[], EnvBase], actor, cfg: PPOConfig, frames: int, seed: int):
+    if cfg.workers == 1:
+        collector = Collector(env_factory, actor, frames_per_batch=cfg.frames_per_batch, total_frames=frames,
+                              auto_register_policy_transforms=False)
+    else:
+        collector = MultiSyncCollector([env_factory] * cfg.workers, actor, frames_per_batch=cfg.frames_per_batch,
+                                       total_frames=frames)
+    collector.set_seed(seed)
+    return collector
+
+
+def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Path,
+              progress: Optional[ProgressFn] = None) -> PPOResult:
+    """Train (or resume) a lift policy; see the module docstring.  ``env_factory`` must be picklable when
+    ``cfg.workers`` > 1 (it is called in each worker)."""
+    probe = env_factory()
+    actor, critic, norm = build_actor_critic(probe, cfg)
+    probe.close()
+    loss_module = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=cfg.clip_epsilon,
+                              entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,
+                              loss_critic_type="l2", normalize_advantage=True)
+    advantage = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=critic, average_gae=False)
+    optimizer = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
+    start_iteration, frames, history = 0, 0, []
+    checkpoint = Path(checkpoint)
+    if checkpoint.exists():
+        state = load_checkpoint(checkpoint)
+        actor.load_state_dict(state["actor"])
+        critic.load_state_dict(state["critic"])
+        optimizer.load_state_dict(state["optimizer"])
+        start_iteration, frames, history = state["iteration"], state["frames"], list(state["history"])
+    result = PPOResult(actor=actor, critic=critic, history=history, resumed_from=start_iteration)
+    remaining = cfg.iterations - start_iteration
+    if remaining <= 0:
+        return result
+
+    collector = _make_collector(env_factory, actor, cfg, remaining * cfg.frames_per_batch, cfg.seed + start_iteration)
+    buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.frames_per_batch), sampler=SamplerWithoutReplacement(),
+                          batch_size=cfg.minibatch_size)
+    start = time.perf_counter()
+    iteration = start_iteration
+    try:
+        for data in collector:
+            iteration += 1
+            frames += data.numel()
+            if cfg.normalize_observations:
+                norm.update(data["observation"])
+            losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg)
+            collector.update_policy_weights_()
+            row = {"iteration": iteration, "frames": frames, **losses, **episode_stats(data)}
+            history.append(row)
+            if progress is not None:
+                elapsed = time.perf_counter() - start
+                done_here = iteration - start_iteration
+                progress(iteration, cfg.iterations, {**row, "eta_s": elapsed / done_here * (cfg.iterations - iteration)})
+            if iteration % cfg.checkpoint_every == 0 or iteration == cfg.iterations:
+                _save(checkpoint, actor, critic, optimizer, iteration, frames, history, cfg)
+    finally:
+        collector.shutdown()
+    return result
+
+
+def _ppo_update(data: TensorDictBase, advantage: GAE, loss_module: ClipPPOLoss, optimizer, buffer: ReplayBuffer,
+                cfg: PPOConfig) -> dict:
+    """``epochs`` passes of minibatch PPO over one batch (advantages recomputed each epoch, as torchrl's recipe)."""
+    sums: dict[str, float] = {}
+    steps = 0
+    for _ in range(cfg.epochs):
+        with torch.no_grad():
+            data = advantage(data)
+        buffer.empty()
+        buffer.extend(data.reshape(-1))
+        for batch in buffer:
+            loss = loss_module(batch)
+            total = loss["loss_objective"] + loss["loss_critic"] + loss.get("loss_entropy", torch.zeros(()))
+            optimizer.zero_grad()
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+            for key in ("loss_objective", "loss_critic", "entropy"):
+                if key in loss.keys():
+                    sums[key] = sums.get(key, 0.0) + float(loss[key].detach())
+            steps += 1
+    return {k: v / max(steps, 1) for k, v in sums.items()}
+
+
+def episode_stats(data: TensorDictBase) -> dict:
+    """Mean reward per step, and over the episodes that ended in the batch: success rate and final lift."""
+    done = data["next", "done"].squeeze(-1)
+    out = {"reward": float(data["next", "reward"].mean())}
+    if bool(done.any()):
+        out["success"] = float(data["next", "success"].squeeze(-1)[done].float().mean())
+        out["final_lift"] = float(data["next", "lift"].squeeze(-1)[done].mean())
+        out["episodes"] = int(done.sum())
+    return out
