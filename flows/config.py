@@ -25,7 +25,9 @@ from components.errors import MultigraspError
 from components.execution.lift_config import LiftEnvConfig
 from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
+from tasks.pointnet import PointNetStageConfig
 from tasks.scenes import ScenesStageConfig
+from tasks.specialists import SpecialistsStageConfig
 from tasks.synthesize import SynthesisStageConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
@@ -64,6 +66,10 @@ class PipelineConfig(Section):
                                             description="Grasp synthesis stage (optimiser, metrics, scenes, renders).")
     lift: LiftEnvConfig = Field(default_factory=LiftEnvConfig,
                                 description="PyBullet lift environment of the execution policies (physics, actions, reward).")
+    pointnet: PointNetStageConfig = Field(default_factory=PointNetStageConfig,
+                                          description="Pre-training of the point-cloud encoder (pointnet stage).")
+    specialists: SpecialistsStageConfig = Field(default_factory=SpecialistsStageConfig,
+                                                description="Binning of the pre-grasps and PPO of each specialist.")
 
     @field_validator("run")
     @classmethod

@@ -1,0 +1,100 @@
+"""Stage flow ``specialists``: one PPO lift policy per bin of synthesised pre-grasps (fanned out)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow
+
+from components.execution.clustering import assign_bins
+from components.execution.records import record_to_dict
+from flows.config import PipelineConfig, section_digest
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+                           planned_shards_and_merge, shards_then_merge)
+from tasks.artifacts import Manifest, code_version, digest, upstream_hashes
+from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task
+from tasks.tracking import Tracker
+from tasks.units import UnitSpec, make_spec
+
+STAGE = "specialists"
+UPSTREAM: tuple[str, ...] = ("synthesize", "pointnet")
+DESCRIPTION = "bin the training pre-grasps and train one TorchRL PPO lift specialist per bin in PyBullet"
+
+
+def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
+             tracking_uri: str | None = None) -> list[tuple[UnitSpec, str, list[dict]]]:
+    """(spec, bin label, records as dicts) of every trained bin, largest bins first (``max_bins``)."""
+    stage = cfg.specialists
+    records = select_records(upstream["synthesize"], stage, stage.splits)
+    bins = [(label, idx) for label, idx in assign_bins(records, stage.clustering).items()
+            if len(idx) >= stage.min_records_per_bin]
+    bins.sort(key=lambda item: (-len(item[1]), item[0]))
+    if stage.max_bins:
+        bins = bins[: stage.max_bins]
+    base = section_digest(cfg, "specialists.ppo", "lift", "hand", "objects")
+    code = code_version(*SPECIALIST_CODE_DIRS)
+    plan = []
+    for number, (label, idx) in enumerate(sorted(bins)):
+        chunk = [record_to_dict(records[i]) for i in idx]
+        spec = make_spec(stage=STAGE, unit=f"bin-{number:03d}", section_digest=base,
+                         upstream={"records": digest(chunk)[:20], "pointnet": upstream["pointnet"].key[:20]},
+                         code=code, workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+        plan.append((spec, label, chunk))
+    return plan
+
+
+def merge_spec(cfg: PipelineConfig, bins: list[Manifest], run_id: str | None = None,
+               tracking_uri: str | None = None) -> UnitSpec:
+    return make_spec(stage=STAGE, unit="merge", section_digest=section_digest(cfg, "specialists.clustering"),
+                     upstream=upstream_hashes((m.unit, m) for m in bins), code=code_version("tasks/specialists.py"),
+                     workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+
+
+def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:
+    return planned_shards_and_merge([spec for spec, _, _ in bin_plan(cfg, upstream)],
+                                    lambda bins: merge_spec(cfg, bins))
+
+
+@flow(name="specialists", log_prints=False, validate_parameters=False)
+def specialists_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
+    tracker = make_tracker(cfg)
+    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    uri = tracker.tracking_uri
+    plan = bin_plan(cfg, upstream, run_id, uri)
+    console = make_console()
+    stage = cfg.specialists
+    console.print(f"[bold cyan]{STAGE}[/] {len(plan)} bin(s), {sum(len(c) for _, _, c in plan)} pre-grasp(s) "
+                  f"({stage.records_source}), {stage.ppo.iterations} x {stage.ppo.frames_per_batch} frames each")
+    if not plan:
+        console.print(f"[bold yellow]{STAGE}[/] no pre-grasps to train on: the synthesis stage accepted none in the "
+                      f"splits {stage.splits} — see its report.md")
+    encoder = str(upstream["pointnet"].path("encoder"))
+    progress = StageProgress(console, STAGE, total=len(plan) + 1)
+    futures = [train_bin_task.submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
+               for spec, label, chunk in plan]
+    return shards_then_merge(STAGE, futures, lambda bins: merge_task.submit(merge_spec(cfg, bins, run_id, uri), bins),
+                             progress, run_id)
+
+
+def log_stage(tracker: Tracker, result: StageResult) -> None:
+    """MLflow: per-bin learning curves (metrics per iteration, prefixed by the bin) and their plots."""
+    import json
+
+    tracker.log_metrics(result.run_id, result.manifest.metrics)
+    if result.fully_cached:
+        return
+    index = json.loads(result.manifest.path("index").read_text())
+    for label, entry in index.items():
+        folder = Path(entry["folder"])
+        for row in json.loads((folder / "history.json").read_text()):
+            name = label.replace("+", "-")  # MLflow metric names allow no '+'
+            values = {f"{name}.{k}": float(v) for k, v in row.items() if k not in ("iteration",)}
+            tracker.log_metrics(result.run_id, values, step=int(row["iteration"]))
+        tracker.log_artifact(result.run_id, folder / "learning_curve.png", f"specialists/{label.replace('/', '_').replace('+', '-')}")
+
+
+def runner_flow(cfg: PipelineConfig):
+    return specialists_flow.with_options(task_runner=make_task_runner(cfg.run))
+
+
+__all__ = ["STAGE", "UPSTREAM", "DESCRIPTION", "planned_units", "runner_flow", "log_stage"]

@@ -1,0 +1,166 @@
+"""The ``specialists`` stage: one TorchRL PPO lift policy per bin of pre-grasps (paper §"Learning a
+Generalist from Specialists", §"Learning a Multi-Object Lifting Policy").
+
+Records: the synthesised pre-grasps of the training split (``records_source='accepted'``: the
+accepted ones; ``'lowest_energy'``: per scene the lowest-energy candidates whatever the filter said --
+only for the smoke profile, whose tiny synthesis budget accepts none, so that the stage's plumbing runs
+end to end; never for numbers), with at most ``max_objects`` objects, split into bins by
+:mod:`components.execution.clustering`.
+
+Units:
+- ``bin-NNN`` -- the bin's records (``records.json``), PPO training (:func:`components.execution.ppo.train_ppo`)
+  with its checkpoint ``policy.pt`` kept in the unit folder, so a killed run resumes from the last
+  checkpoint; ``history.json`` and ``learning_curve.png``.
+- ``merge`` -- ``index.json``: bin label -> policy, records, number of records and final metrics.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from prefect import task
+from pydantic import Field
+
+from components.config_base import Section
+from components.execution.clustering import ClusteringConfig
+from components.execution.lift_config import LiftEnvConfig
+from components.execution.lift_sim import GraspRecord
+from components.execution.ppo import PPOConfig
+from components.objects import Placement, Scene
+from components.objects.config import ObjectsConfig
+from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with
+from tasks.preflight import cache_dir
+from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
+
+SPECIALIST_CODE_DIRS = ("components/execution", "components/hand", "assets/hand", "components/objects",
+                        "assets/objects", "tasks/specialists.py")
+
+
+class SpecialistsStageConfig(Section):
+    """Which pre-grasps, how they are binned, and the PPO of every specialist."""
+
+    ppo: PPOConfig = Field(default_factory=PPOConfig, description="PPO of each specialist.")
+    clustering: ClusteringConfig = Field(default_factory=ClusteringConfig, description="How pre-grasps are split into bins.")
+    records_source: Literal["accepted", "lowest_energy"] = Field(
+        "accepted",
+        description="accepted: the synthesis stage's accepted grasps. lowest_energy: per scene the lowest-energy "
+        "candidates whatever the filter said -- for the smoke profile only (its budget accepts none), so the "
+        "stage runs end to end; results from it mean nothing.")
+    lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates taken per scene.")
+    splits: list[str] = Field(default_factory=lambda: ["train"], description="Synthesis splits the specialists train on.")
+    max_objects: int = Field(2, ge=1, description="Pre-grasps of scenes with more objects are left out (the paper's specialists: 1-2 objects).")
+    min_records_per_bin: int = Field(1, ge=1, description="Bins with fewer pre-grasps get no specialist.")
+    max_bins: int = Field(0, ge=0, description="Train at most this many bins, the largest first (0 = every bin).")
+
+
+# --------------------------------------------------------------------------- records from the synthesis tables
+
+
+def records_from_table(frame) -> list[GraspRecord]:
+    """GraspRecords of the rows of a synthesis table (``tasks.synthesize`` layout)."""
+    out = []
+    for row in frame.itertuples(index=False):
+        names = list(row.object_names)
+        pos = np.asarray(row.object_positions, float).reshape(-1, 3)
+        quat = np.asarray(row.object_quats_xyzw, float).reshape(-1, 4)
+        scene = Scene(objects=tuple(Placement(n, tuple(map(float, p)), tuple(map(float, q)))
+                                    for n, p, q in zip(names, pos, quat)))
+        out.append(GraspRecord(scene=scene, p=np.asarray(row.p, float), R=np.asarray(row.R, float).reshape(3, 3),
+                               q=np.asarray(row.q, float),
+                               meta={"scene_id": row.scene_id, "split": row.split, "row": int(row.row),
+                                     "combination": row.combination, "accepted": bool(row.accepted)}))
+    return out
+
+
+def select_records(synthesis: Manifest, stage: SpecialistsStageConfig, splits: list[str]) -> list[GraspRecord]:
+    """The pre-grasps of ``splits`` per ``records_source`` (module docstring), scene and row order."""
+    import pandas as pd
+
+    if stage.records_source == "accepted":
+        frame = pd.read_parquet(synthesis.path("grasps"))
+    else:
+        both = [pd.read_parquet(synthesis.path(k)) for k in ("grasps", "rejected")]
+        frame = pd.concat([f for f in both if len(f)], ignore_index=True) if any(len(f) for f in both) else both[0]
+        if len(frame):
+            frame = (frame.sort_values(["scene_id", "energy"])
+                     .groupby("scene_id", sort=True).head(stage.lowest_energy_per_scene))
+    if not len(frame):
+        return []
+    frame = frame[frame["split"].isin(splits) & (frame["object_names"].map(len) <= stage.max_objects)]
+    return records_from_table(frame.sort_values(["scene_id", "row"]))
+
+
+# --------------------------------------------------------------------------- one bin
+
+
+def plot_learning_curve(path: Path, history: list[dict], title: str) -> Path:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3))
+    ax = fig.add_subplot(1, 2, 1)
+    ax.plot([h["frames"] for h in history], [h["reward"] for h in history])
+    ax.set_xlabel("frames")
+    ax.set_ylabel("mean reward per step")
+    ax2 = fig.add_subplot(1, 2, 2)
+    rows = [h for h in history if "success" in h]
+    ax2.plot([h["frames"] for h in rows], [h["success"] for h in rows])
+    ax2.set_xlabel("frames")
+    ax2.set_ylabel("episode success")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
+
+
+def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: SpecialistsStageConfig,
+              lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder: Path, cache: Path, unit: str) -> UnitOutput:
+    from components.execution.factory import LiftEnvFactory
+    from components.execution.ppo import train_ppo
+    from components.execution.records import record_from_dict, save_records
+    from components.hand import HandModel
+
+    records_path = save_records(folder / "records.json", [record_from_dict(r) for r in records])
+    urdf = HandModel(hand_cfg).export_urdf(folder / "hand.urdf")
+    factory = LiftEnvFactory(hand_cfg=hand_cfg.model_dump(mode="json"), objects_cfg=objects.model_dump(mode="json"),
+                             objects_cache=str(cache), urdf=str(urdf), records=str(records_path),
+                             lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed)
+
+    def progress(iteration: int, total: int, info: dict) -> None:
+        success = f" success {info['success']:.2f}" if "success" in info else ""
+        print(f"specialists {unit} ({label}) iteration {iteration}/{total} reward {info['reward']:.3f}{success} "
+              f"ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
+
+    result = train_ppo(factory, stage.ppo, folder / "policy.pt", progress)
+    history = atomic_write_json(folder / "history.json", result.history)
+    curve = plot_learning_curve(folder / "learning_curve.png", result.history, f"{label} ({len(records)} pre-grasps)")
+    last = result.history[-1] if result.history else {}
+    metrics = {"records": len(records), "iterations": len(result.history), "frames": int(last.get("frames", 0)),
+               "final_reward": round(float(last.get("reward", 0.0)), 6)}
+    if "success" in last:
+        metrics["final_success"] = round(float(last["success"]), 6)
+    return UnitOutput(files={"policy": folder / "policy.pt", "records": records_path, "history": history,
+                             "learning_curve": curve, "urdf": urdf},
+                      metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from})
+
+
+@task(name="specialist-bin", cache_policy=VerifiedUnitCache(), persist_result=True)
+def train_bin_task(spec: UnitSpec, label: str, records: list[dict[str, Any]], stage: SpecialistsStageConfig,
+                   lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder_path: str) -> Manifest:
+    """Prefect unit: one specialist (PPO checkpoint kept in the unit folder: a rerun after a crash resumes)."""
+    return run_unit(spec, lambda folder: train_bin(folder, label, records, stage, lift, objects, hand_cfg,
+                                                   Path(encoder_path), cache_dir(Path(spec.workdir)), spec.unit))
+
+
+@task(name="specialists-merge", cache_policy=VerifiedUnitCache(), persist_result=True)
+def merge_task(spec: UnitSpec, bins: list[Manifest]) -> Manifest:
+    """Prefect unit: ``index.json`` of the specialists."""
+    def body(folder: Path) -> UnitOutput:
+        index = {m.meta["bin"]: {"unit": m.unit, "folder": str(m.folder), "policy": str(m.path("policy")),
+                                 "records": str(m.path("records")), "metrics": m.metrics} for m in bins}
+        path = atomic_write_json(folder / "index.json", index)
+        metrics = {"bins": len(bins), "records": sum(int(m.metrics.get("records", 0)) for m in bins)}
+        return UnitOutput(files={"index": path}, metrics=metrics)
+
+    return run_unit(spec, body)
