@@ -7,6 +7,7 @@
     multigrasp scenes --profile smoke           # only the scenes stage
     multigrasp synthesize --profile smoke       # only the synthesize stage (scenes must be done)
     multigrasp evaluate pregrasp --source synthetic   # Q1 / PN / Div table of the synthesised grasps
+    multigrasp evaluate execution                     # lift success of the specialists (Syn-Pl / Com / Geo)
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp bench kinematics --json out.json # FK + distance timings
     multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
@@ -101,9 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Write an evaluation table to <workdir>/results/ (JSON + markdown) and log it "
                                     "to its own MLflow run. `pregrasp --source synthetic` measures the grasps of "
                                     "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo, Syn-train-pairs).")
-    ev.add_argument("target", choices=["pregrasp"], help="what to evaluate")
-    ev.add_argument("--source", choices=["synthetic"], required=True,
-                    help="where the pre-grasps come from: synthetic = the synthesize stage")
+    ev.add_argument("target", choices=["pregrasp", "execution"],
+                    help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
+    ev.add_argument("--source", choices=["synthetic"], default=None,
+                    help="pregrasp: where the pre-grasps come from (synthetic = the synthesize stage); required there")
     _config_args(ev)
 
     ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
@@ -218,6 +220,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from flows.evaluate import evaluate_pregrasp
 
     cfg = _load(args)
+    if args.target == "execution":
+        from flows.evaluate_execution import evaluate_execution
+
+        report = evaluate_execution(cfg)
+        print(report.markdown)
+        print(f"written: {report.json_path}  {report.ablation_path}")
+        return 0
+    if args.source is None:
+        raise MultigraspError("evaluate pregrasp needs --source (synthetic) — e.g. multigrasp evaluate pregrasp --source synthetic")
     report = evaluate_pregrasp(cfg, args.source)
     print(report.markdown)
     print(f"written: {report.json_path}  {report.markdown_path}")

@@ -54,6 +54,11 @@ class SpecialistsStageConfig(Section):
     max_objects: int = Field(2, ge=1, description="Pre-grasps of scenes with more objects are left out (the paper's specialists: 1-2 objects).")
     min_records_per_bin: int = Field(1, ge=1, description="Bins with fewer pre-grasps get no specialist.")
     max_bins: int = Field(0, ge=0, description="Train at most this many bins, the largest first (0 = every bin).")
+    eval_poses: int = Field(100, ge=1, description="multigrasp evaluate execution: pre-grasps per setting (the paper: 512).")
+    eval_trials: int = Field(5, ge=1, description="Trials per pre-grasp, each from a seeded perturbation (the paper: 5).")
+    eval_seed: int = Field(0, ge=0, description="Seed of the evaluation's trial perturbations.")
+    scripted_force_fraction: float = Field(
+        0.5, gt=0.0, le=1.0, description="The 'w/o RL' baseline's upward base force, as a fraction of lift.max_base_force_n.")
 
 
 # --------------------------------------------------------------------------- records from the synthesis tables

@@ -242,3 +242,16 @@ def episode_stats(data: TensorDictBase) -> dict:
         out["final_lift"] = float(data["next", "lift"].squeeze(-1)[done].mean())
         out["episodes"] = int(done.sum())
     return out
+
+
+def load_actor(path: Path, env: EnvBase) -> ProbabilisticActor:
+    """The trained actor of a checkpoint, for ``env``'s specs (observation normaliser included)."""
+    state = load_checkpoint(Path(path))
+    cfg = PPOConfig(**state["config"])
+    actor, _, _ = build_actor_critic(env, cfg)
+    try:
+        actor.load_state_dict(state["actor"])
+    except RuntimeError:
+        raise MultigraspError(f"PPO checkpoint {path} does not fit this environment's observation / action sizes; "
+                              "retrain it (multigrasp run --until specialists)") from None
+    return actor.eval()
