@@ -230,3 +230,55 @@ def test_contact_candidate_normals_are_outward_unit_normals_of_the_hand_surface(
     assert torch.allclose(normals.norm(dim=-1), torch.ones(normals.shape[:2], dtype=DTYPE))
     outside = hand.signed_distance(points + 0.002 * normals, p, R, q)  # 2 mm out along the normal
     assert float(outside.median()) == pytest.approx(0.002, abs=1e-4)
+
+
+def test_contact_gate_weights_sum_to_the_contact_count_and_drop_hovering_contacts():
+    """w_i = C exp(-|d_i|/s) / sum_j exp(-|d_j|/s): equal distances -> all ones; d = (0, 0, 3 s) -> the third
+    weight is 3 e^-3 / (2 + e^-3); detached (no gradient through the weights)."""
+    from components.synthesis.energy import contact_gate_weights
+
+    s = 0.01
+    equal = contact_gate_weights(torch.full((1, 3), 0.02, dtype=DTYPE), s)
+    assert torch.allclose(equal, torch.ones(1, 3, dtype=DTYPE))
+    d = torch.tensor([[0.0, -0.0, 3 * s]], dtype=DTYPE, requires_grad=True)
+    w = contact_gate_weights(d, s)
+    e3 = math.exp(-3.0)
+    assert float(w[0, 2]) == pytest.approx(3 * e3 / (2 + e3), rel=1e-9)
+    assert float(w[0, 0]) == pytest.approx(3 / (2 + e3), rel=1e-9)
+    assert float(w.sum()) == pytest.approx(3.0, rel=1e-12) and not w.requires_grad
+    assert torch.equal(contact_gate_weights(d.detach(), 0.0), torch.ones(1, 3, dtype=DTYPE))
+
+
+def test_gated_force_closure_ignores_a_hovering_contact():
+    """Two antipodal contacts on the sphere's equator plus a third one: with the gate, moving the third contact
+    far off the surface leaves (nearly) the antipodal pair's error, which is 0."""
+    from components.synthesis.energy import contact_gate_weights
+
+    normals = torch.tensor([[[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]], dtype=DTYPE)
+    points = 0.02 * normals
+    centre, radius = torch.zeros(3, dtype=DTYPE), torch.tensor(0.02, dtype=DTYPE)
+    plain = force_closure_error(points, normals, centre, radius, margin=0.0)
+    assert float(plain[0]) == pytest.approx(1.0)  # the third normal is unbalanced
+    w = contact_gate_weights(torch.tensor([[0.0, 0.0, 0.1]], dtype=DTYPE), 0.005)  # third 10 cm off
+    gated = force_closure_error(points, normals, centre, radius, margin=0.0, weights=w)
+    assert float(gated[0]) < 1e-15
+
+
+def test_pair_initialisation_puts_the_palm_above_the_pair_facing_down_fingers_across(hand, library):
+    scene = Scene(objects=(Placement("cube", (-0.03, 0.0, 0.02), IDENTITY), Placement("sphere", (0.03, 0.0, SPHERE_RADIUS), IDENTITY)))
+    objects = SceneObjects(library, scene, dtype=DTYPE)
+    cfg = SynthesisConfig(batch_size=32, init_mode="pair", init_jitter_deg=0.0, init_pair_height_m=(0.01, 0.03))
+    problem = GraspProblem.build(hand, objects, cfg)
+    x, _ = initial_poses(problem, torch.Generator().manual_seed(0))
+    p, R, q = unpack(x)
+    palm_centre = p + R @ palm_centre_local(hand)
+    assert torch.allclose(palm_centre[:, :2], objects.centroid[:2].expand(32, 2))
+    top = 0.05  # the sphere's top (z = 0.025 + 0.025; its mesh's highest vertex within 1 mm)
+    assert torch.all(palm_centre[:, 2] >= top + 0.01 - 1e-3) and torch.all(palm_centre[:, 2] <= top + 0.03 + 1e-6)
+    assert torch.allclose(-R[:, :, 1], torch.tensor([0.0, 0.0, -1.0], dtype=DTYPE).expand(32, 3))  # palm down
+    assert torch.allclose(R[:, 0, 2].abs(), torch.zeros(32, dtype=DTYPE), atol=1e-9)  # fingers across the x line
+    assert torch.allclose(R[:, 1, 2].abs(), torch.ones(32, dtype=DTYPE))
+    assert (R[:, 1, 2] > 0).any() and (R[:, 1, 2] < 0).any()  # both signs drawn
+    along = GraspProblem.build(hand, objects, cfg.model_copy(update={"init_pair_roll": "along"}))
+    _, R2, _ = unpack(initial_poses(along, torch.Generator().manual_seed(0))[0])
+    assert torch.allclose(R2[:, 0, 2].abs(), torch.ones(32, dtype=DTYPE))

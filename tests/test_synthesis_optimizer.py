@@ -223,3 +223,45 @@ def test_nearest_assignment_takes_the_best_candidate_of_the_best_fingers(hand, l
         update={"batch_size": 4, "mala_steps": 4, "refine_steps": 2}), torch.Generator().manual_seed(0))
     assert _fingers_distinct_per_object(result.contacts, finger_of)
     assert torch.equal(result.contact_regions, hand.contact_region_of[result.contacts])
+
+
+def test_fc_weight_ramp_levels():
+    from components.synthesis.optimizer import fc_weight_at
+
+    cfg = SynthesisConfig(mala_steps=1000, w_fc=2.0, w_fc_ramp_fraction=0.4)  # ramp over 400 steps
+    assert fc_weight_at(0, cfg) == 0.0 and fc_weight_at(39, cfg) == 0.0
+    assert fc_weight_at(40, cfg) == pytest.approx(0.2) and fc_weight_at(399, cfg) == pytest.approx(1.8)
+    assert fc_weight_at(400, cfg) == 2.0 and fc_weight_at(999, cfg) == 2.0
+    assert fc_weight_at(0, SynthesisConfig(w_fc=2.0)) == 2.0  # no ramp
+
+
+def test_best_contacts_never_raise_the_contact_energy_and_keep_fingers_distinct(hand, library):
+    from components.synthesis.energy import best_contacts
+
+    problem, _ = _pair_problem(hand, library)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    p, R, q = unpack(x)
+    points, normals = hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
+    chosen = best_contacts(problem, points, normals, contacts)
+    assert _fingers_distinct_per_object(chosen, problem.finger_of)
+    flat = chosen.reshape(chosen.shape[0], -1)
+    assert all(len(set(row.tolist())) == flat.shape[1] for row in flat)  # distinct across objects too
+
+    def contact_energy(c):
+        _, _, terms = energy_and_grad(problem, x, c)
+        cfg = problem.cfg
+        return cfg.w_fc * terms["fc"] + cfg.w_dist * terms["dist"] + cfg.w_align * terms["align"]
+
+    before, after = contact_energy(contacts), contact_energy(chosen)
+    assert torch.all(after <= before + 1e-6)
+    assert float(after.mean()) < float(before.mean())  # random initial contacts are improved
+    assert torch.equal(best_contacts(problem, points, normals, chosen), chosen)  # a fixed point
+
+
+def test_mean_filter_reduces_each_objects_contacts_by_their_mean():
+    from components.synthesis.filtering import contact_distance_for_filter
+
+    terms = {"contact_distance_max": torch.tensor([0.012]), "contact_distance_per_object": torch.tensor([[0.004, 0.003]])}
+    assert float(contact_distance_for_filter(terms, SynthesisConfig())) == pytest.approx(0.012)
+    mean_cfg = SynthesisConfig(filter_contact_distance_reduce="mean")
+    assert float(contact_distance_for_filter(terms, mean_cfg)) == pytest.approx(0.004)

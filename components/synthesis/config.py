@@ -52,6 +52,15 @@ class SynthesisConfig(Section):
         description="Lever arms x in G = [I; [x]x] are measured from the object's centre and divided by its radius, so "
         "the torque rows are scale-free like Q1's (the official code used raw world coordinates in metres, where the "
         "torque rows are ~100x smaller than the force rows).")
+    fc_contact_gate_m: float = Field(
+        0.0, ge=0.0,
+        description="Distance scale s (m) of the proximity weights of the contact forces in E_fc "
+        "(energy.contact_gate_weights: w_i = C exp(-|d_i|/s) / sum_j exp(-|d_j|/s)): a contact hovering off the "
+        "surface carries little force, so E_fc cannot be met through the SDF normal of a hovering contact. 0 = off "
+        "(official: every contact counts fully wherever it is). Measured (cube + cylinder, seed 0): with 0.01 (and "
+        "pair init, reassignment, fc ramp) the max contact distance median falls from 29 to 18 mm but max E_fc "
+        "median rises from 0.14 to 1.0 (1/32 accepted, Q1 0); undetached weights (tried, removed) pushed contacts off "
+        "the surface. Off by default.")
     couple_distal_joints: bool = Field(
         True,
         description="Evaluate the energy at q with the J0 of FF/MF/RF/LF recomputed from J1 by the Shadow Hand's "
@@ -92,7 +101,10 @@ class SynthesisConfig(Section):
         "pose by energy.best_contacts: every finger offers its candidate of lowest assignment score, every set of "
         "contacts_per_object fingers is scored by the contact-dependent energy w_fc E_fc + w_dist E_dist + w_align "
         "E_align, and the best set replaces the current contacts if it scores lower (a greedy Gibbs-like move; the "
-        "row's energy never rises). Also applied before, and with contact_reassign_refine during, refinement.")
+        "row's energy never rises). Also applied before, and with contact_reassign_refine during, refinement. "
+        "Measured (cube + cylinder, B = 32, 1000 MALA + 200 refine, seed 0): every 50 steps 0/32 accepted, max "
+        "contact distance median 32 mm (default 0/32, 32 mm) -- the poses, not the assignment, keep contacts off the "
+        "surface; off by default.")
     contact_reassign_refine: bool = Field(
         False,
         description="With contact_reassign_every > 0, also reassign every contact_reassign_every refinement steps "
@@ -101,7 +113,9 @@ class SynthesisConfig(Section):
         0.0, ge=0.0, le=1.0,
         description="Staged objective: during the first fraction of the MALA steps the E_fc weight ramps linearly "
         "from 0 to w_fc (in 10 piecewise-constant levels; the state is re-evaluated at each level), so the hand first "
-        "approaches the objects under E_dist / E_pen / E_align and force closure is enforced afterwards. 0 = off.")
+        "approaches the objects under E_dist / E_pen / E_align and force closure is enforced afterwards. 0 = off. "
+        "Measured only in combination (init_mode='pair', w_align 0, reassignment every 10): 0/32 on cube + cylinder "
+        "seed 0; even with w_fc = 0 throughout, 500 MALA steps leave the max contact distance at median 27 mm.")
     assign_align_scale_m: float = Field(
         0.02, ge=0.0,
         description="With contact_assignment='nearest': distance (m) added to the score of a candidate whose hand "
@@ -176,7 +190,10 @@ class SynthesisConfig(Section):
         "(initializations module docstring). 'pair' (scenes of >= 2 objects; one object falls back to 'sphere'): "
         "palm centre above the centroid, init_pair_height_m above the highest object top, palm facing down within "
         "init_max_polar_deg / init_jitter_deg, fingers (+z) across the line joining the two objects farthest apart "
-        "(random sign), so ff/mf reach one object and rf/lf the other.")
+        "(random sign), so ff/mf reach one object and rf/lf the other. Measured (cube + cylinder, seed 0, 400 Adam "
+        "steps on E_dist + E_pen only, w_align 0): rows with all 6 contacts within 5 mm 15/32 with 'pair' vs 2/32 "
+        "with 'sphere' ('along' roll: 2/32); but the full MALA (step 1 cm, T 8 at the start) leaves that start: "
+        "with the default energy 0/32 accepted either way, so 'sphere' stays the default.")
     init_pair_height_m: tuple[float, float] = Field(
         (0.01, 0.03),
         description="With init_mode='pair': range (m) of the palm centre's height above the highest object point.")

@@ -62,8 +62,25 @@ def friction_tilted_forces(normals: Tensor, friction: float) -> Tensor:
     return normals + tangent * scale
 
 
+def contact_gate_weights(signed_distance: Tensor, scale: float) -> Tensor:
+    """Proximity weights of the contacts in E_fc (``fc_contact_gate_m`` = s):
+
+        g_i = exp(-|d_i| / s),   w_i = C g_i / sum_j g_j,
+
+    so the C weights sum to C (all equal to 1 when the contacts are equally far) and a contact far from the
+    surface, relative to the others, carries almost no force: E_fc is then the force-closure error of the
+    contacts that touch, and a hovering contact cannot help it.  The weights are detached: through them the
+    gradient would push contacts off the surface whenever dropping them lowers E_fc.  s <= 0 returns ones.
+    (B, C) -> (B, C)."""
+    if scale <= 0.0:
+        return torch.ones_like(signed_distance)
+    dist = signed_distance.detach().abs()
+    g = torch.exp(-(dist - dist.amin(-1, keepdim=True)) / scale)
+    return signed_distance.shape[-1] * g / g.sum(-1, keepdim=True)
+
+
 def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length: Tensor, margin: float,
-                        friction: float = 0.0) -> Tensor:
+                        friction: float = 0.0, weights: Optional[Tensor] = None) -> Tensor:
     """Force-closure error of one object (paper Eq. multi-dfc-energy, E_FC; DFC, Liu et al. 2021, Eq. 8b):
 
         E_fc = relu(|G f|^2 - margin),   G = [ I_3  ...  I_3 ; [x_1]x ... [x_C]x ]  (6 x 3C),
@@ -75,11 +92,14 @@ def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length:
     its lever arm (length = the object's radius, or 1 m for the official raw coordinates).  Zero when
     the forces balance in force and torque (up to ``margin``).  Without friction three contacts on a
     box's faces can never balance (three axis-aligned unit vectors never sum to zero); with mu = 0.5 a
-    pinch plus a third face contact does.
+    pinch plus a third face contact does.  ``weights`` (B, C) (:func:`contact_gate_weights`) scale the
+    forces f_i <- w_i f_i after the friction tilt.
     points, normals (B, C, 3), centre (3,), length () -> (B,).
     """
     lever = (points - centre) / length  # (B, C, 3)
     forces = friction_tilted_forces(normals, friction)
+    if weights is not None:
+        forces = forces * weights.unsqueeze(-1)
     force = forces.sum(dim=1)  # (B, 3)
     torque = torch.cross(lever, forces, dim=-1).sum(dim=1)  # (B, 3)
     return torch.relu((force * force).sum(-1) + (torque * torque).sum(-1) - margin)
@@ -252,8 +272,9 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
         pts = points.gather(1, index.reshape(batch, -1, 1).expand(-1, -1, 3)).reshape(batch * n_sets, per, 3)
         nrm = hand_normals.gather(1, index.reshape(batch, -1, 1).expand(-1, -1, 3)).reshape(batch * n_sets, per, 3)
         d, n = objects.object_sdf_and_normal(j, pts)
+        gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         e = (w_fc * force_closure_error(pts, n, objects.positions[j], problem.lever_lengths[j], cfg.fc_margin,
-                                        cfg.fc_friction)
+                                        cfg.fc_friction, gate)
              + w_dist * contact_distance_energy(d) + cfg.w_align * contact_alignment_energy(nrm, n))
         return e.reshape(batch, n_sets)
 
@@ -374,8 +395,9 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     fc, dist, align, contact_dist = [], [], [], []
     for j in range(objects.n_objects):
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
+        gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
-                                      cfg.fc_margin, cfg.fc_friction))
+                                      cfg.fc_margin, cfg.fc_friction, gate))
         dist.append(contact_distance_energy(d))
         align.append(contact_alignment_energy(contact_normals[:, j], n))
         contact_dist.append(d.detach().abs())
