@@ -85,3 +85,38 @@ def test_mlflow_has_the_learning_curves(runs):
     assert computed, "the specialists run that trained logs per-bin reward curves"
     key = next(k for k in computed[0].data.metrics if k.endswith(".reward"))
     assert len(client.get_metric_history(computed[0].info.run_id, key)) == 2
+
+
+def test_evaluate_execution_writes_the_success_tables(runs, tmp_path):
+    workdir, _, _ = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=2"]:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    rows = json.loads((workdir / "results" / "execution.json").read_text())["rows"]
+    assert [r["setting"] for r in rows] == ["Syn-Pl", "Syn-Com", "Syn-Geo"]
+    for row in rows:
+        assert set(row) >= {"setting", "succ", "n_poses", "trials"} and row["trials"] == 2
+        assert row["succ"] is None or 0.0 <= row["succ"] <= 1.0
+    assert rows[1]["n_poses"] + rows[1]["unmatched_poses"] >= 1  # the Com pair is evaluated (or said unmatched)
+    ablation = json.loads((workdir / "results" / "ablation_execution.json").read_text())["rows"]
+    assert [r["setting"] for r in ablation] == ["Ours", "w/o RL", "w/o Goal", "w/o Spe-Pl", "w/o Spe-Com", "w/o Spe"]
+    assert all(r["succ"] is None and r["missing"] for r in ablation[2:])
+
+
+def test_evaluate_execution_without_the_stages_names_the_command(tmp_path, capsys):
+    assert main(["evaluate", "execution", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    assert "multigrasp run --until specialists" in capsys.readouterr().err
+
+
+def test_matching_specialist_prefers_the_own_bin_then_the_sector_then_the_object_count():
+    from flows.evaluate_execution import matching_specialist
+
+    index = {"cube+sphere/3": {"metrics": {"records": 5}}, "cube+cylinder/3": {"metrics": {"records": 9}},
+             "cube+cylinder/0": {"metrics": {"records": 20}}, "cube/0": {"metrics": {"records": 4}}}
+    assert matching_specialist("cube+sphere/3", index) == "cube+sphere/3"
+    assert matching_specialist("duck+sphere/3", index) == "cube+cylinder/3"  # same sector, largest
+    assert matching_specialist("duck+sphere/5", index) == "cube+cylinder/0"  # same object count, largest
+    assert matching_specialist("duck/2", index) == "cube/0"
+    assert matching_specialist("a+b+c/1", index) is None
