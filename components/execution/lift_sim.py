@@ -148,6 +148,11 @@ class LiftWorld:
         return self.read()
 
     # ------------------------------------------------------------------ stepping
+    def set_joint_targets(self, q: np.ndarray) -> None:
+        """Joint position targets (22,), clamped to the limits (reaching drives the fingers with them)."""
+        self.targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper)
+        self._send_targets()
+
     def _send_targets(self) -> None:
         n = len(self.joint_index)
         pb.setJointMotorControlArray(
