@@ -61,7 +61,7 @@ def matching_specialist(label: str, index: dict[str, dict]) -> str | None:
 
 def evaluate_execution(cfg: PipelineConfig) -> ExecutionReport:
     from components.execution.clustering import bin_label
-    from components.execution.evaluation import LiftEvaluation, ScriptedLift, evaluate_lift
+    from components.execution.evaluation import LiftEvaluation, ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
     from components.execution.ppo import load_actor
     from components.execution.records import save_records
@@ -78,7 +78,7 @@ def evaluate_execution(cfg: PipelineConfig) -> ExecutionReport:
     index = json.loads(specialists.path("index").read_text())
     results = cfg.run.workdir / "results"
     scratch = results / "execution"
-    rows, ablation = [], []
+    rows, ablation, gifs = [], [], []
     for setting, split in EXECUTION_SETTINGS:
         records = select_records(synthesis, stage, [split])[: stage.eval_poses]
         groups: dict[str, list] = {}
@@ -101,8 +101,10 @@ def evaluate_execution(cfg: PipelineConfig) -> ExecutionReport:
                                      encoder=str(stage_output(cfg, "pointnet").path("encoder")))
             env = factory()
             try:
-                result: LiftEvaluation = evaluate_lift(env, load_actor(Path(entry["policy"]), env),
-                                                       trials=stage.eval_trials, seed=stage.eval_seed)
+                actor = load_actor(Path(entry["policy"]), env)
+                result: LiftEvaluation = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed)
+                gifs += _outcome_gifs(env, actor, result, stage, scratch / setting / label.replace("/", "_"),
+                                      rollout_gif, trial_seed)
                 wins += sum(result.successes_per_pose)
                 total += result.n_poses * result.trials
                 poses += result.n_poses
@@ -135,9 +137,33 @@ def evaluate_execution(cfg: PipelineConfig) -> ExecutionReport:
     tracker.log_metrics(run_id, {f"{r['setting']}/succ": r["succ"] for r in rows + ablation if r["succ"] is not None})
     for path in (json_path, ablation_path, markdown_path):
         tracker.log_artifact(run_id, path, "results")
+    for path in gifs:
+        tracker.log_artifact(run_id, path, "rollouts")
     tracker.end_run(run_id)
     return ExecutionReport(rows=rows, ablation_rows=ablation, json_path=json_path, ablation_path=ablation_path,
                            markdown=markdown)
+
+
+def _outcome_gifs(env, actor, result, stage, folder: Path, rollout_gif, trial_seed) -> list[Path]:
+    """GIFs of up to ``stage.gifs_per_outcome`` successful and failed trials of one specialist's poses.  The
+    trials are seeded, so a replay has the evaluated outcome; poses whose trials all had an outcome whose
+    quota is full are skipped."""
+    left = {True: stage.gifs_per_outcome, False: stage.gifs_per_outcome}
+    out = []
+    for pose, wins in enumerate(result.successes_per_pose):
+        for trial in range(result.trials):
+            possible = {True} if wins == result.trials else {False} if wins == 0 else {True, False}
+            if not any(left[o] for o in possible):
+                break
+            path, success = rollout_gif(env, actor, pose, trial_seed(stage.eval_seed, pose, trial),
+                                        folder / f"pose{pose}_trial{trial}.gif")
+            if left[success]:
+                left[success] -= 1
+                final = path.with_name(f"{'success' if success else 'failure'}_{path.name}")
+                out.append(path.replace(final))
+            else:
+                path.unlink()
+    return out
 
 
 def _pct(value) -> str:

@@ -57,6 +57,9 @@ class SpecialistsStageConfig(Section):
     eval_poses: int = Field(100, ge=1, description="multigrasp evaluate execution: pre-grasps per setting (the paper: 512).")
     eval_trials: int = Field(5, ge=1, description="Trials per pre-grasp, each from a seeded perturbation (the paper: 5).")
     eval_seed: int = Field(0, ge=0, description="Seed of the evaluation's trial perturbations.")
+    gifs_per_outcome: int = Field(
+        2, ge=0, description="multigrasp evaluate execution: GIFs of this many successful and this many failed trials "
+        "per specialist, logged to MLflow (each replays a trial with the CPU renderer, ~1 s).")
     scripted_force_fraction: float = Field(
         0.5, gt=0.0, le=1.0, description="The 'w/o RL' baseline's upward base force, as a fraction of lift.max_base_force_n.")
 

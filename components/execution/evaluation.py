@@ -79,3 +79,39 @@ def evaluate_lift(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBas
     total = n * trials
     return LiftEvaluation(succ=sum(per_pose) / total if total else 0.0, n_poses=n, trials=trials,
                           successes_per_pose=per_pose, final_lifts=lifts)
+
+
+def rollout_gif(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase], pose: int, seed: int, path,
+                camera=None, every: int = 2, frame_ms: int = 80):
+    """Replay one evaluation trial (``pose``, trial ``seed``) and write it as an animated GIF: a frame every
+    ``every`` env steps from ``cameras.render_rgb`` (CPU renderer) looking at the objects' start centre.
+    Returns (path, success)."""
+    from pathlib import Path
+
+    import numpy as np
+    from PIL import Image
+
+    from components.execution.cameras import CameraConfig, render_rgb
+
+    cam = camera or CameraConfig(width=240, height=180, distance_m=0.45, pitch_deg=-25.0)
+    env.set_next_record(pose, seed)
+    frames = []
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        td = env.reset()
+        target = np.mean([pl.position for pl in env.world.record.scene.objects], axis=0) + np.array([0.0, 0.0, 0.06])
+        frames.append(render_rgb(env.world.client, target, cam))
+        success = False
+        for step in range(env.cfg.max_steps):
+            td = env.step(policy(td))["next"]
+            if (step + 1) % every == 0:
+                frames.append(render_rgb(env.world.client, target, cam))
+            success = bool(td["success"])
+            if bool(td["done"]):
+                break
+    images = [Image.fromarray(f) for f in frames]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.gif")
+    images[0].save(tmp, save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
+    tmp.replace(path)
+    return path, success
