@@ -106,6 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
     ev.add_argument("--source", choices=["synthetic"], default=None,
                     help="pregrasp: where the pre-grasps come from (synthetic = the synthesize stage); required there")
+    ev.add_argument("--ablations", action="store_true",
+                    help="execution: also train and evaluate the specialists of the ablations (w/o Goal, w/o Spe-*)")
     _config_args(ev)
 
     ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
@@ -223,7 +225,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.target == "execution":
         from flows.evaluate_execution import evaluate_execution
 
-        report = evaluate_execution(cfg)
+        report = evaluate_execution(cfg, ablations=args.ablations)
         print(report.markdown)
         print(f"written: {report.json_path}  {report.ablation_path}")
         return 0

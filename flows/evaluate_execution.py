@@ -8,9 +8,10 @@ placement sector and object count (unseen combinations / geometries), else the l
 count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`).
 
 Writes ``<workdir>/results/execution.json`` ``{"rows": [{"setting", "succ", "n_poses", "trials"}]}`` and
-``ablation_execution.json`` with ``Ours`` (= Syn-Pl) and ``w/o RL`` (the scripted lift on the same poses);
-the ablations that need policies trained differently (``w/o Goal``, ``w/o Spe-Pl``, ``w/o Spe-Com``,
-``w/o Spe``) are listed with ``succ: null`` and the reason until the stage trains them.  Both files, and a
+``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the scripted lift on the same poses) and,
+with ``--ablations``, ``w/o Goal``, ``w/o Spe-Pl``, ``w/o Spe-Com``, ``w/o Spe``: the specialists stage is run
+with the overrides of :data:`ABLATIONS` (its own cached units) and evaluated on Syn-Pl the same way;
+without the flag those rows have ``succ: null`` and say how to get them.  Both files, and a
 markdown table, are logged to their own MLflow run.
 """
 
@@ -28,10 +29,13 @@ from tasks.artifacts import atomic_write_json, atomic_write_text
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
 #: Paper (Table "execution", specialists, Syn rows) for comparison only.
 PAPER_SPECIALIST_SUCC = {"Syn-Pl": 0.6834}
-NOT_TRAINED = {"w/o Goal": "needs specialists trained with lift.goal_observations=false",
-               "w/o Spe-Pl": "needs specialists trained with specialists.clustering.mode=combination",
-               "w/o Spe-Com": "needs specialists trained with specialists.clustering.mode=placement",
-               "w/o Spe": "needs one policy trained with specialists.clustering.mode=single"}
+#: The ablations that need differently trained specialists: config overrides of each (paper Table "ablations").
+ABLATIONS: dict[str, dict[str, Any]] = {
+    "w/o Goal": {"lift.goal_observations": False},
+    "w/o Spe-Pl": {"specialists.clustering.mode": "combination"},
+    "w/o Spe-Com": {"specialists.clustering.mode": "placement"},
+    "w/o Spe": {"specialists.clustering.mode": "single"},
+}
 
 
 @dataclass
@@ -59,71 +63,129 @@ def matching_specialist(label: str, index: dict[str, dict]) -> str | None:
     return None
 
 
-def evaluate_execution(cfg: PipelineConfig) -> ExecutionReport:
+@dataclass
+class SplitResult:
+    """Success of the specialists (and optionally the scripted baseline) on one split's pre-grasps."""
+
+    wins: int = 0
+    total: int = 0
+    poses: int = 0
+    scripted_wins: int = 0
+    scripted_total: int = 0
+    unmatched: int = 0
+    used: tuple[str, ...] = ()
+    gifs: tuple[Path, ...] = ()
+
+    @staticmethod
+    def rate(wins: int, total: int) -> float | None:
+        return round(wins / total, 4) if total else None
+
+
+def _stage_outputs(cfg: PipelineConfig):
+    from flows.pipeline import stage_output
+
+    outputs = {name: stage_output(cfg, name) for name in ("synthesize", "pointnet", "specialists")}
+    if any(v is None for v in outputs.values()):
+        raise MultigraspError("evaluate execution needs the synthesize and specialists stages for this config — run "
+                              "`multigrasp run --until specialists` first (same --profile / --config / --set)")
+    return outputs
+
+
+def evaluate_split(cfg: PipelineConfig, split: str, scratch: Path, scripted: bool = False,
+                   gifs: bool = True) -> SplitResult:
+    """Lift the first ``eval_poses`` pre-grasps of ``split`` with their matching specialists (module docstring)."""
     from components.execution.clustering import bin_label
-    from components.execution.evaluation import LiftEvaluation, ScriptedLift, evaluate_lift, rollout_gif, trial_seed
+    from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
     from components.execution.ppo import load_actor
     from components.execution.records import save_records
-    from flows.pipeline import stage_output
-    from flows.runtime import make_tracker
     from tasks.preflight import cache_dir
     from tasks.specialists import select_records
 
+    stage, outputs = cfg.specialists, _stage_outputs(cfg)
+    index = json.loads(outputs["specialists"].path("index").read_text())
+    groups: dict[str, list] = {}
+    out = SplitResult()
+    for record in select_records(outputs["synthesize"], stage, [split])[: stage.eval_poses]:
+        match = matching_specialist(bin_label(record, stage.clustering), index)
+        if match is None:
+            out.unmatched += 1
+        else:
+            groups.setdefault(match, []).append(record)
+    out.used = tuple(sorted(groups))
+    gif_paths: list[Path] = []
+    for label, group in sorted(groups.items()):
+        entry, name = index[label], label.replace("/", "_")
+        factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
+                                 objects_cache=str(cache_dir(cfg.run.workdir)),
+                                 urdf=str(Path(entry["folder"]) / "hand.urdf"),
+                                 records=str(save_records(scratch / f"{name}.json", group)),
+                                 lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(outputs["pointnet"].path("encoder")))
+        env = factory()
+        try:
+            actor = load_actor(Path(entry["policy"]), env)
+            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed)
+            out.wins += sum(result.successes_per_pose)
+            out.total += result.n_poses * result.trials
+            out.poses += result.n_poses
+            if gifs:
+                gif_paths += _outcome_gifs(env, actor, result, stage, scratch / name, rollout_gif, trial_seed)
+            if scripted:
+                base = evaluate_lift(env, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
+                                     seed=stage.eval_seed)
+                out.scripted_wins += sum(base.successes_per_pose)
+                out.scripted_total += base.n_poses * base.trials
+        finally:
+            env.close()
+    out.gifs = tuple(gif_paths)
+    return out
+
+
+def ablation_config(cfg: PipelineConfig, overrides: dict[str, Any]) -> PipelineConfig:
+    """``cfg`` with dotted overrides applied (validated like --set)."""
+    data = cfg.model_dump(mode="json")
+    for dotted, value in overrides.items():
+        node = data
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node[key]
+        node[leaf] = value
+    return PipelineConfig.model_validate(data)
+
+
+def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> ExecutionReport:
+    """Write the execution tables (module docstring).  With ``ablations`` the specialists of every
+    :data:`ABLATIONS` config are trained first (the specialists stage with those overrides: cached units)."""
+    from flows import specialists as specialists_stage
+    from flows.pipeline import run_pipeline
+    from flows.runtime import make_tracker
+
     stage = cfg.specialists
-    synthesis, specialists = stage_output(cfg, "synthesize"), stage_output(cfg, "specialists")
-    if synthesis is None or specialists is None:
-        raise MultigraspError("evaluate execution needs the synthesize and specialists stages for this config — run "
-                              "`multigrasp run --until specialists` first (same --profile / --config / --set)")
-    index = json.loads(specialists.path("index").read_text())
+    _stage_outputs(cfg)
     results = cfg.run.workdir / "results"
     scratch = results / "execution"
     rows, ablation, gifs = [], [], []
     for setting, split in EXECUTION_SETTINGS:
-        records = select_records(synthesis, stage, [split])[: stage.eval_poses]
-        groups: dict[str, list] = {}
-        unmatched = 0
-        for record in records:
-            match = matching_specialist(bin_label(record, stage.clustering), index)
-            if match is None:
-                unmatched += 1
-            else:
-                groups.setdefault(match, []).append(record)
-        wins = total = poses = 0
-        scripted_wins = scripted_total = 0
-        for label, group in sorted(groups.items()):
-            entry = index[label]
-            path = save_records(scratch / setting / f"{label.replace('/', '_')}.json", group)
-            factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
-                                     objects_cache=str(cache_dir(cfg.run.workdir)),
-                                     urdf=str(Path(entry["folder"]) / "hand.urdf"), records=str(path),
-                                     lift_cfg=cfg.lift.model_dump(mode="json"),
-                                     encoder=str(stage_output(cfg, "pointnet").path("encoder")))
-            env = factory()
-            try:
-                actor = load_actor(Path(entry["policy"]), env)
-                result: LiftEvaluation = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed)
-                gifs += _outcome_gifs(env, actor, result, stage, scratch / setting / label.replace("/", "_"),
-                                      rollout_gif, trial_seed)
-                wins += sum(result.successes_per_pose)
-                total += result.n_poses * result.trials
-                poses += result.n_poses
-                if setting == "Syn-Pl":
-                    scripted = evaluate_lift(env, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                             seed=stage.eval_seed)
-                    scripted_wins += sum(scripted.successes_per_pose)
-                    scripted_total += scripted.n_poses * scripted.trials
-            finally:
-                env.close()
-        row = {"setting": setting, "succ": round(wins / total, 4) if total else None, "n_poses": poses,
-               "trials": stage.eval_trials, "unmatched_poses": unmatched, "specialists_used": sorted(groups)}
+        res = evaluate_split(cfg, split, scratch / setting, scripted=setting == "Syn-Pl")
+        gifs += res.gifs
+        row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
+               "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used)}
         rows.append(row)
         if setting == "Syn-Pl":
-            ablation.append({"setting": "Ours", "succ": row["succ"], "n_poses": poses, "trials": stage.eval_trials})
-            ablation.append({"setting": "w/o RL", "succ": round(scripted_wins / scripted_total, 4) if scripted_total else None,
-                             "n_poses": poses, "trials": stage.eval_trials})
-    ablation += [{"setting": name, "succ": None, "n_poses": 0, "trials": stage.eval_trials, "missing": why}
-                 for name, why in NOT_TRAINED.items()]
+            ablation.append({"setting": "Ours", "succ": row["succ"], "n_poses": res.poses, "trials": stage.eval_trials})
+            ablation.append({"setting": "w/o RL", "succ": res.rate(res.scripted_wins, res.scripted_total),
+                             "n_poses": res.poses, "trials": stage.eval_trials})
+    for name, overrides in ABLATIONS.items():
+        if not ablations:
+            ablation.append({"setting": name, "succ": None, "n_poses": 0, "trials": stage.eval_trials,
+                             "missing": f"run with --ablations (trains specialists with {overrides})"})
+            continue
+        variant = ablation_config(cfg, overrides)
+        run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
+        res = evaluate_split(variant, "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"), gifs=False)
+        ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
+                         "trials": stage.eval_trials, "overrides": overrides})
+    specialists = _stage_outputs(cfg)["specialists"]
     provenance = {"profile": cfg.profile, "records_source": stage.records_source,
                   "specialists_manifest": str(Path(specialists.folder) / "manifest.json")}
     json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance})

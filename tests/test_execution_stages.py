@@ -102,7 +102,7 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path):
     assert rows[1]["n_poses"] + rows[1]["unmatched_poses"] >= 1  # the Com pair is evaluated (or said unmatched)
     ablation = json.loads((workdir / "results" / "ablation_execution.json").read_text())["rows"]
     assert [r["setting"] for r in ablation] == ["Ours", "w/o RL", "w/o Goal", "w/o Spe-Pl", "w/o Spe-Com", "w/o Spe"]
-    assert all(r["succ"] is None and r["missing"] for r in ablation[2:])
+    assert all(r["succ"] is None and "--ablations" in r["missing"] for r in ablation[2:])
 
 
 def test_evaluate_execution_without_the_stages_names_the_command(tmp_path, capsys):
@@ -120,3 +120,22 @@ def test_matching_specialist_prefers_the_own_bin_then_the_sector_then_the_object
     assert matching_specialist("duck+sphere/5", index) == "cube+cylinder/0"  # same object count, largest
     assert matching_specialist("duck/2", index) == "cube/0"
     assert matching_specialist("a+b+c/1", index) is None
+
+
+def test_evaluate_execution_with_ablations_trains_and_evaluates_the_variants(runs, monkeypatch):
+    import flows.evaluate_execution as ev
+
+    monkeypatch.setattr(ev, "ABLATIONS", {"w/o Goal": {"lift.goal_observations": False}})
+    workdir, _, _ = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = ["evaluate", "execution", "--ablations", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=1",
+                 "specialists.gifs_per_outcome=0"]:
+        argv += ["--set", item]
+    before = len(executions(workdir))
+    assert main(argv) == 0  # this small config has no Pl scenes: the rows have 0 poses, the training still runs
+    ablation = json.loads((workdir / "results" / "ablation_execution.json").read_text())["rows"]
+    goal = next(r for r in ablation if r["setting"] == "w/o Goal")
+    assert goal["overrides"] == {"lift.goal_observations": False}
+    trained = [e for e in executions(workdir)[before:] if e.startswith("specialists/bin-")]
+    assert trained, "the w/o Goal specialists are trained by the ablation run"

@@ -93,7 +93,7 @@ def rollout_gif(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase]
 
     from components.execution.cameras import CameraConfig, render_rgb
 
-    cam = camera or CameraConfig(width=240, height=180, distance_m=0.45, pitch_deg=-25.0)
+    cam = camera or CameraConfig(width=240, height=180, distance_m=0.7, yaw_deg=70.0, pitch_deg=-20.0)
     env.set_next_record(pose, seed)
     frames = []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
