@@ -1,0 +1,56 @@
+"""Multi-object grasp generation (DESIGN §5.2-5.3; paper §"Multi-object Grasp Generation" and §"Refinement").
+
+Modules, in pipeline order: :mod:`~.config` (``GeneratorConfig``, ``IKConfig``, ``RefineConfig``),
+:mod:`~.canonical` (palm alignment about z), :mod:`~.pointnet2` (PointNet++ object tokens),
+:mod:`~.denoiser` (cross-attention eps-network), :mod:`~.diffusion` (DDPM schedule, q_sample, loss,
+ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints), :mod:`~.ik`
+(keypoints -> (p, R, q)), :mod:`~.generator` (model wrapper, palm-aligned generation) and
+:mod:`~.refine` (E_pen + contact pull with tau 2 mm -> 1 mm)::
+
+    from components.generation import GeneratorConfig, GraspGenerator, IKConfig, generate_grasps
+    model = GraspGenerator(GeneratorConfig())
+    p, R, q = generate_grasps(model, hand, clouds, palm_yaw, IKConfig(), per_scene=8)
+"""
+
+from components.generation.canonical import AlignedFrame, palm_direction, rotation_z, yaw_of
+from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
+from components.generation.denoiser import GraspDenoiser, ObjectContext, ObjectInputs, timestep_embedding
+from components.generation.diffusion import (
+    NoiseSchedule,
+    Standardizer,
+    diffusion_loss,
+    linear_beta_schedule,
+    p_sample,
+    q_sample,
+    sample,
+    train_diffusion,
+)
+from components.generation.generator import GraspGenerator, generate_grasps
+from components.generation.ik import IKResult, kabsch, keypoint_error, palm_keypoint_indices, solve_ik
+from components.generation.pointnet2 import (
+    PointNet2Encoder,
+    SetAbstraction,
+    ball_query,
+    farthest_point_sampling,
+    group,
+)
+from components.generation.refine import (
+    RefineResult,
+    contact_energy,
+    penetration_energy,
+    refine_grasps,
+    refinement_energy,
+    refinement_problem,
+    tau_at,
+)
+from components.generation.representation import from_representation, representation_dim, to_representation
+
+__all__ = [
+    "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
+    "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SetAbstraction",
+    "Standardizer", "ball_query", "contact_energy", "diffusion_loss", "farthest_point_sampling",
+    "from_representation", "generate_grasps", "group", "kabsch", "keypoint_error", "linear_beta_schedule",
+    "p_sample", "palm_direction", "palm_keypoint_indices", "penetration_energy", "q_sample", "refine_grasps",
+    "refinement_energy", "refinement_problem", "representation_dim", "rotation_z", "sample", "solve_ik",
+    "tau_at", "timestep_embedding", "to_representation", "train_diffusion", "yaw_of",
+]

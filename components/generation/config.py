@@ -1,0 +1,141 @@
+"""Config sections of multi-object grasp generation (DESIGN §5.2-5.3; paper §"Multi-object Grasp Generation"
+and §"Multi-object Grasp Refinement").
+
+* :class:`GeneratorConfig` -- the conditional DDPM: PointNet++ object encoder, cross-attention denoiser,
+  noise schedule (100 steps, linear beta 1e-4 -> 0.01, as SceneDiffuser / the paper) and its training.
+* :class:`IKConfig` -- keypoints -> (p, R, q): palm frame by Kabsch, then the 18 actuated joints by Adam.
+* :class:`RefineConfig` -- the refinement energy E_g = E_pen + lambda_c E_contact with tau 2 mm -> 1 mm.
+
+Numbers that are not the paper's are documented choices of this project.
+"""
+
+from typing import Literal
+
+from pydantic import Field, PositiveInt, model_validator
+
+from components.config_base import Section
+
+
+class GeneratorConfig(Section):
+    """Conditional DDPM over a palm-aligned hand representation, conditioned on object point clouds."""
+
+    # ------------------------------------------------------------------ representation / inputs
+    representation: Literal["keypoints", "joints"] = Field(
+        "keypoints",
+        description="Hand representation the diffusion runs on: 'keypoints' = the 31 hand keypoints (31 x 3, m, "
+        "palm-aligned frame; the paper's choice, one token per keypoint) or 'joints' = (p, rot6d, q) of "
+        "components.synthesis.pose (3 + 6 + 22 = 31 numbers, one token; the paper's ablation).")
+    points_per_object: int = Field(
+        512, ge=8, description="Points in each object's input cloud (the PointNet++ input N).")
+    max_objects: int = Field(
+        3, ge=1, description="Object slots of the condition (learnable slot embeddings); scenes with fewer objects "
+        "mask the missing slots out of the attention.")
+    input_scale_m: float = Field(
+        0.1, gt=0.0, description="Object coordinates (m) are divided by this fixed scale before PointNet++.")
+
+    # ------------------------------------------------------------------ PointNet++ object encoder
+    sa1_points: int = Field(64, ge=1, description="Centroids picked by farthest point sampling in set abstraction level 1.")
+    sa1_radius_m: float = Field(0.01, gt=0.0, description="Ball-query radius (m) of level 1.")
+    sa1_neighbours: int = Field(16, ge=1, description="Points grouped per centroid in level 1 (k of the ball query).")
+    sa1_widths: tuple[PositiveInt, ...] = Field((32, 32, 64), description="Shared MLP widths of level 1.")
+    sa2_points: int = Field(16, ge=1, description="Centroids of level 2 = object tokens per object (M).")
+    sa2_radius_m: float = Field(0.02, gt=0.0, description="Ball-query radius (m) of level 2.")
+    sa2_neighbours: int = Field(16, ge=1, description="Points grouped per centroid in level 2.")
+    sa2_widths: tuple[PositiveInt, ...] = Field((64, 64, 128), description="Shared MLP widths of level 2.")
+    global_widths: tuple[PositiveInt, ...] = Field(
+        (128, 128), description="Shared MLP widths of the group-all level that gives each object's global token.")
+
+    # ------------------------------------------------------------------ denoiser
+    model_dim: int = Field(128, ge=8, description="Width of the hand tokens and of the attention (object tokens are projected to it).")
+    heads: int = Field(4, ge=1, description="Attention heads (model_dim must be divisible by it).")
+    blocks: int = Field(3, ge=1, description="Denoiser blocks (self-attention, cross-attention to the objects, MLP).")
+    mlp_ratio: int = Field(2, ge=1, description="Hidden width of each block's MLP = mlp_ratio * model_dim.")
+    time_embedding_dim: int = Field(64, ge=2, description="Width of the sinusoidal timestep embedding (even).")
+    dropout: float = Field(0.0, ge=0.0, lt=1.0, description="Dropout of attention and MLPs.")
+    use_object_embedding: bool = Field(
+        True,
+        description="Add a learnable embedding per object slot to every token of that object (paper: identical for "
+        "one object, different across objects); False = the ablation without it.")
+
+    # ------------------------------------------------------------------ diffusion (DDPM, Ho et al. 2020)
+    diffusion_steps: int = Field(100, ge=1, description="T, the number of diffusion steps (paper / SceneDiffuser: 100).")
+    beta_start: float = Field(1e-4, gt=0.0, lt=1.0, description="beta_1 of the linear schedule (SceneDiffuser: 1e-4).")
+    beta_end: float = Field(
+        0.01, gt=0.0, lt=1.0,
+        description="beta_T of the linear schedule (SceneDiffuser: 0.01).  Note: with T = 100 this leaves "
+        "alpha_bar_T = prod(1 - beta_t) ~ 0.60, so x_T still carries signal; sampling starts from N(0, I) anyway "
+        "(as SceneDiffuser does) on data normalised to unit variance.")
+    posterior_variance: Literal["posterior", "beta"] = Field(
+        "posterior",
+        description="Sigma_t^2 of the reverse step: 'posterior' = beta~_t = (1 - abar_{t-1}) / (1 - abar_t) beta_t, "
+        "'beta' = beta_t (both from Ho et al. 2020).")
+    clip_sample: float = Field(
+        0.0, ge=0.0,
+        description="If > 0, the x_0 estimate of each reverse step is clamped to [-c, c] (normalised units) before "
+        "the posterior mean is formed; 0 = off (the plain epsilon form).")
+
+    # ------------------------------------------------------------------ training
+    lr: float = Field(2e-4, gt=0.0, description="AdamW learning rate.")
+    weight_decay: float = Field(0.0, ge=0.0, description="AdamW weight decay.")
+    batch_size: int = Field(128, ge=1, description="Grasps per training minibatch.")
+    train_steps: int = Field(100_000, ge=0, description="Optimiser steps of training.")
+    grad_clip: float = Field(1.0, ge=0.0, description="Max global gradient norm (0 = no clipping).")
+    seed: int = Field(0, description="Seed of the weight initialisation, minibatches, noise and timesteps.")
+    log_every: int = Field(100, ge=1, description="Steps between progress callbacks.")
+
+    @model_validator(mode="after")
+    def _check(self) -> "GeneratorConfig":
+        if self.model_dim % self.heads:
+            raise ValueError("model_dim must be divisible by heads")
+        if self.time_embedding_dim % 2:
+            raise ValueError("time_embedding_dim must be even")
+        if self.sa2_points > self.sa1_points or self.sa1_points > self.points_per_object:
+            raise ValueError("need sa2_points <= sa1_points <= points_per_object")
+        if self.beta_end < self.beta_start:
+            raise ValueError("beta_end must be >= beta_start")
+        return self
+
+
+class IKConfig(Section):
+    """Inverse kinematics from the 31 keypoints (ik module docstring)."""
+
+    steps: int = Field(300, ge=0, description="Adam steps on the 18 actuated joint angles.")
+    lr: float = Field(0.1, gt=0.0, description="Adam learning rate of the joint angles (rad per step, roughly).")
+    lr_final_fraction: float = Field(
+        0.05, gt=0.0, le=1.0, description="The learning rate decays by cosine to lr * this fraction at the last step.")
+    init: Literal["open", "mid"] = Field(
+        "mid", description="Initial joint angles: 'open' = every joint 0, 'mid' = the middle of every actuated range.")
+    restarts: int = Field(
+        2, ge=1,
+        description="Independent starts per target: start 0 is `init`, the others are uniform in the limits "
+        "(seeded); the start with the lowest final keypoint error is kept.")
+    refit_palm: bool = Field(
+        True, description="Also optimise the palm pose (p, rot6d), starting from the Kabsch fit, with the joints.")
+    palm_lr_m: float = Field(5e-4, gt=0.0, description="With refit_palm: Adam learning rate of the palm position (m per step).")
+    palm_lr_rot: float = Field(5e-3, gt=0.0, description="With refit_palm: Adam learning rate of the 6-D rotation parameters.")
+    seed: int = Field(0, description="Seed of the random restarts.")
+
+
+class RefineConfig(Section):
+    """Grasp refinement E_g = E_pen + lambda_c E_contact (refine module docstring; paper §Refinement)."""
+
+    steps: int = Field(200, ge=0, description="Adam steps.")
+    lr: float = Field(5e-4, gt=0.0, description="Adam learning rate (about 0.5 mm / 0.5 mrad per step).")
+    tau_start_m: float = Field(0.002, gt=0.0, description="Contact threshold tau at the first step (paper: 2 mm).")
+    tau_end_m: float = Field(0.001, gt=0.0, description="Contact threshold tau at the last step, linear in between (paper: 1 mm).")
+    w_pen: float = Field(1.0, ge=0.0, description="Weight of E_pen (synthesis energy's penetration, its own sub-weights).")
+    w_contact: float = Field(
+        1.0, ge=0.0,
+        description="lambda_c: weight of the contact term (1 / (N_o |S|)) sum |d(x, O_j)| over hand points x "
+        "within tau of object j.")
+    w_prior: float = Field(10.0, ge=0.0, description="Weight of the joint-limit prior (joints are also clamped).")
+    couple_distal_joints: bool = Field(True, description="Evaluate with the J0s of FF/MF/RF/LF following J1.")
+    object_surface_points: int = Field(256, ge=1, description="Object surface samples tested against the hand SDF.")
+    hand_point_spacing_m: float = Field(0.01, gt=0.0, description="Spacing (m) of the hand surface samples tested against the objects.")
+    keep_best: bool = Field(True, description="Return, per grasp, the pose of lowest E_g seen.")
+
+    @model_validator(mode="after")
+    def _check(self) -> "RefineConfig":
+        if self.tau_end_m > self.tau_start_m:
+            raise ValueError("tau_end_m must be <= tau_start_m (coarse to fine)")
+        return self

@@ -1,0 +1,160 @@
+"""Refinement of generated grasps (paper §"Multi-object Grasp Refinement"; DESIGN §5.3):
+
+    min_H  E_g(H, O) = w_pen E_pen(H, O) + lambda_c E_contact(H, O; tau) + w_prior E_prior(H)
+
+* E_pen: the synthesis energy's penetration (hand points in objects, object points in the hand, self
+  penetration, hand below the table, with ``SynthesisConfig``'s default sub-weights), computed with the
+  same functions as :func:`components.synthesis.energy.energy` (:func:`penetration_energy`).
+* E_contact (:func:`contact_energy`): hand surface points already within tau of an object surface are
+  pulled onto it,  E_contact = 1 / (N_o |S|) sum_j sum_{x in S(H), |d(x, O_j)| < tau} |d(x, O_j)|,
+  S(H) the hand's contact candidates (``HandModel.contact_candidates``: the palmar patches).  (The paper
+  writes the sum with a minus sign and d <= tau; with |d| it is the stated intent: "guides floating
+  fingers closer to the surfaces".)
+* tau decreases linearly from ``tau_start_m`` (2 mm) to ``tau_end_m`` (1 mm) over the steps (:func:`tau_at`).
+* E_prior: joint-limit violation; the joints are also clamped to their limits after every step.
+
+Batched Adam on x = (p, rot6d, q) (:mod:`components.synthesis.pose`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+from components.generation.config import RefineConfig
+from components.hand import HandModel
+from components.hand.model import world_from_palm
+from components.synthesis.config import SynthesisConfig
+from components.synthesis.energy import (
+    GraspProblem,
+    hand_points_in_objects,
+    hand_points_object_distances,
+    object_points_hand_distances,
+    object_points_in_hand,
+    posed_in_world,
+    self_penetration_energy,
+    table_penetration,
+)
+from components.synthesis.pose import pack, unpack
+from components.synthesis.scene_objects import SceneObjects
+
+#: progress(step, total, info)
+ProgressFn = Callable[[int, int, dict], None]
+
+
+def refinement_problem(hand: HandModel, objects: SceneObjects, cfg: RefineConfig) -> GraspProblem:
+    """The synthesis :class:`GraspProblem` (fixed object / hand surface samples) with this config's sample
+    counts and coupling; the other synthesis settings (penetration sub-weights) keep their defaults."""
+    synthesis = SynthesisConfig(object_surface_points=cfg.object_surface_points,
+                                hand_point_spacing_m=cfg.hand_point_spacing_m,
+                                couple_distal_joints=cfg.couple_distal_joints)
+    return GraspProblem.build(hand, objects, synthesis)
+
+
+def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
+    """E_pen = w_po sum relu(-d_H(o_k)) + w_ph sum relu(-d_O(h_m)) + w_self E_spen + w_table E_table (m;
+    :mod:`components.synthesis.energy`), and the deepest sampled penetration (detached, m).
+    p (B, 3), R (B, 3, 3), q (B, 22) -> (E_pen (B,), depth (B,))."""
+    cfg, hand, objects = problem.cfg, problem.hand, problem.objects
+    batch = p.shape[0]
+    frames = hand.forward_kinematics(q)  # (B, L, 4, 4) palm frame
+    prims = hand.collision.pose(frames)
+    n_obj, n_pts = problem.object_points.shape[:2]
+    obj_pts = problem.object_points.reshape(1, n_obj * n_pts, 3).expand(batch, -1, -1)  # (B, n_obj P, 3)
+    d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims).reshape(batch, n_obj, n_pts)
+    d_obj = hand_points_object_distances(objects, problem.hand_surface.from_frames(world_from_palm(p, R, frames)))  # (B, M, n_obj)
+    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
+    lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
+    pen = (cfg.w_pen_object_points * object_points_in_hand(d_hand).sum(-1)
+           + cfg.w_pen_hand_points * hand_points_in_objects(d_obj).sum(-1)
+           + cfg.w_pen_self * self_penetration_energy(pairs)
+           + cfg.w_pen_table * table_penetration(lowest, objects.table_height))
+    with torch.no_grad():
+        depth = torch.maximum(torch.relu(-d_hand).flatten(1).amax(-1), torch.relu(-d_obj).flatten(1).amax(-1))
+        depth = torch.maximum(depth, torch.relu(objects.table_height - lowest).amax(-1))
+        if pairs.shape[1]:
+            depth = torch.maximum(depth, torch.relu(-pairs).amax(-1))
+    return pen, depth
+
+
+def contact_energy(signed_distance: Tensor, tau: float) -> Tensor:
+    """E_contact = 1 / (N_o |S|) sum_j sum_{x: |d(x, O_j)| < tau} |d(x, O_j)|  (m).
+    signed_distance (B, |S|, N_o) of the hand points to each object -> (B,)."""
+    near = signed_distance.abs() < tau
+    return (signed_distance.abs() * near).sum((1, 2)) / (signed_distance.shape[1] * signed_distance.shape[2])
+
+
+def tau_at(step: int, steps: int, cfg: RefineConfig) -> float:
+    """tau_k = tau_start + (tau_end - tau_start) k / (steps - 1),  k = 0 .. steps-1 (tau_start if steps = 1)."""
+    frac = step / (steps - 1) if steps > 1 else 0.0
+    return cfg.tau_start_m + (cfg.tau_end_m - cfg.tau_start_m) * frac
+
+
+def refinement_energy(problem: GraspProblem, x: Tensor, tau: float, cfg: RefineConfig) -> tuple[Tensor, dict]:
+    """E_g (module docstring) of flat poses x (B, 31) -> (E_g (B,), terms {pen, contact, prior, depth} (B,))."""
+    hand = problem.hand
+    p, R, q = unpack(x)
+    q = problem.effective_joints(q)
+    pen, depth = penetration_energy(problem, p, R, q)
+    contact = contact_energy(problem.objects.sdf(hand.contact_candidates(p, R, q)), tau)
+    prior = hand.joint_limit_violation(q)
+    total = cfg.w_pen * pen + cfg.w_contact * contact + cfg.w_prior * prior
+    return total, {"pen": pen.detach(), "contact": contact.detach(), "prior": prior.detach(), "depth": depth}
+
+
+@dataclass
+class RefineResult:
+    """Refined poses p (B, 3), R (B, 3, 3), q (B, 22); E_g and the deepest penetration (m) before and after (B,)."""
+
+    p: Tensor
+    R: Tensor
+    q: Tensor
+    energy_before: Tensor
+    energy_after: Tensor
+    depth_before: Tensor
+    depth_after: Tensor
+    seconds: float
+
+
+def refine_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: Tensor, cfg: RefineConfig,
+                  progress: Optional[ProgressFn] = None, problem: Optional[GraspProblem] = None) -> RefineResult:
+    """Adam on x = (p, rot6d, q) for ``cfg.steps`` with tau_at(k) (module docstring); joints clamped to the limits
+    after each step; with ``keep_best`` each row returns its lowest-E_g pose (evaluated at that step's tau).
+    p (B, 3), R (B, 3, 3), q (B, 22) -> :class:`RefineResult`."""
+    start = time.perf_counter()
+    problem = problem if problem is not None else refinement_problem(hand, objects, cfg)
+    lower, upper = hand.joint_limits.unbind(-1)
+    x = pack(p, R, q).to(hand.dtype).detach().clone()
+    with torch.no_grad():
+        e0, t0 = refinement_energy(problem, x, cfg.tau_start_m, cfg)
+    x.requires_grad_(True)
+    optimiser = torch.optim.Adam([x], lr=cfg.lr)
+    best_x, best_e = x.detach().clone(), torch.full_like(e0, float("inf"))
+    with torch.enable_grad():
+        for step in range(cfg.steps):
+            e, terms = refinement_energy(problem, x, tau_at(step, cfg.steps, cfg), cfg)
+            if cfg.keep_best:
+                better = e.detach() < best_e
+                best_e = torch.where(better, e.detach(), best_e)
+                best_x = torch.where(better.unsqueeze(-1), x.detach(), best_x)
+            optimiser.zero_grad(set_to_none=True)
+            e.sum().backward()
+            optimiser.step()
+            with torch.no_grad():
+                x[:, 9:] = torch.maximum(torch.minimum(x[:, 9:], upper), lower)
+            if progress is not None:
+                progress(step + 1, cfg.steps, {"energy_mean": float(e.mean()), "depth_max": float(terms["depth"].max())})
+    x = x.detach()
+    with torch.no_grad():
+        e, _ = refinement_energy(problem, x, cfg.tau_end_m, cfg)
+        if cfg.keep_best and cfg.steps > 0:
+            x = torch.where((e < best_e).unsqueeze(-1), x, best_x)
+        e1, t1 = refinement_energy(problem, x, cfg.tau_end_m, cfg)
+    p1, R1, q1 = unpack(x)
+    return RefineResult(p=p1, R=R1, q=problem.effective_joints(q1), energy_before=e0, energy_after=e1,
+                        depth_before=t0["depth"], depth_after=t1["depth"], seconds=time.perf_counter() - start)
