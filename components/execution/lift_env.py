@@ -93,17 +93,6 @@ class LiftEnv(EnvBase):
         by a generator seeded with it."""
         self._forced = (index, trial_seed)
 
-    def _perturbed(self, record: GraspRecord, seed: int) -> GraspRecord:
-        rng = np.random.default_rng(seed)
-        q = np.asarray(record.q, float).copy()
-        act = self.world._actuated
-        q[act] += rng.normal(0.0, self.cfg.trial_joint_noise_rad, len(act))
-        q = np.clip(q, self.world.lower, self.world.upper)
-        q[self.world._follower] = np.clip(self.world._offset + self.world._ratio * q[self.world._leader],
-                                          self.world.lower[self.world._follower], self.world.upper[self.world._follower])
-        p = np.asarray(record.p, float) + rng.normal(0.0, self.cfg.trial_position_noise_m, 3)
-        return GraspRecord(scene=record.scene, p=p, R=record.R, q=q, meta=record.meta)
-
     # ------------------------------------------------------------------ EnvBase
     def _update_features(self, state: WorldState) -> None:
         clouds = self.featurizer.clouds(self.world.link_frames(), state.palm_pos, state.palm_rot,
@@ -125,7 +114,8 @@ class LiftEnv(EnvBase):
         else:
             record = self.records[forced[0]]
             if forced[1] is not None:
-                record = self._perturbed(record, forced[1])
+                record = self.world.perturbed(record, np.random.default_rng(forced[1]), self.cfg.trial_position_noise_m,
+                                              self.cfg.trial_joint_noise_rad)
         state = self.world.reset(record)
         self._goal = Goal.from_state(state)
         self._start_heights = state.obj_pos[:, 2].copy()

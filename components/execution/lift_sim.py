@@ -148,6 +148,22 @@ class LiftWorld:
         return self.read()
 
     # ------------------------------------------------------------------ stepping
+    def coupled(self, q22: np.ndarray) -> np.ndarray:
+        """q clamped to the limits with J0 = clamp(offset + ratio * J1) on FF/MF/RF/LF (the tendon coupling)."""
+        q = np.clip(np.asarray(q22, dtype=np.float64), self.lower, self.upper)
+        q[self._follower] = np.clip(self._offset + self._ratio * q[self._leader],
+                                    self.lower[self._follower], self.upper[self._follower])
+        return q
+
+    def perturbed(self, record: GraspRecord, rng: np.random.Generator, position_sigma: float,
+                  joint_sigma: float) -> GraspRecord:
+        """The record with the palm moved by N(0, position_sigma^2) per axis and the 18 actuated joints by
+        N(0, joint_sigma^2), coupled and clamped (evaluation trials)."""
+        q = np.asarray(record.q, dtype=np.float64).copy()
+        q[self._actuated] += rng.normal(0.0, joint_sigma, len(self._actuated))
+        p = np.asarray(record.p, dtype=np.float64) + rng.normal(0.0, position_sigma, 3)
+        return GraspRecord(scene=record.scene, p=p, R=record.R, q=self.coupled(q), meta=record.meta)
+
     def set_joint_targets(self, q: np.ndarray) -> None:
         """Joint position targets (22,), clamped to the limits (reaching drives the fingers with them)."""
         self.targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper)
@@ -165,10 +181,7 @@ class LiftWorld:
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         q22 = self.targets.copy()
         q22[self._actuated] += self.cfg.joint_delta_rad * a[:N_JOINT_ACTIONS]
-        q22 = np.clip(q22, self.lower, self.upper)
-        q22[self._follower] = np.clip(self._offset + self._ratio * q22[self._leader],
-                                      self.lower[self._follower], self.upper[self._follower])
-        self.targets = q22
+        self.targets = self.coupled(q22)
         self._send_targets()
         force = self.cfg.max_base_force_n * a[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3]
         torque = self.cfg.max_base_torque_nm * a[N_JOINT_ACTIONS + 3:]
