@@ -132,11 +132,10 @@ def test_records_with_different_object_counts_are_refused_with_a_clear_error(han
 def test_trial_perturbations_are_seeded_small_and_keep_the_coupling(env, record):
     starts = []
     for seed in (1, 1, 2):
-        env.set_next_record(0, trial_seed := seed)
+        env.set_next_record(0, seed)
         env.reset()
         starts.append(env.world.read())
     assert np.allclose(starts[0].palm_pos, starts[1].palm_pos) and not np.allclose(starts[0].palm_pos, starts[2].palm_pos)
     assert np.abs(starts[0].palm_pos - record.p).max() < 5 * env.cfg.trial_position_noise_m
     q = starts[2].q
     assert np.allclose(env.world.coupled(q), q, atol=1e-6)  # J0 follows J1, within limits
-    del trial_seed
