@@ -14,6 +14,7 @@ ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints)
 
 from components.generation.canonical import AlignedFrame, palm_direction, rotation_z, yaw_of
 from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
+from components.generation.dataset import GraspDataset, object_cloud, posed_clouds, scene_pivot
 from components.generation.denoiser import GraspDenoiser, ObjectContext, ObjectInputs, timestep_embedding
 from components.generation.diffusion import (
     NoiseSchedule,
@@ -44,6 +45,7 @@ from components.generation.refine import (
     tau_at,
 )
 from components.generation.representation import from_representation, representation_dim, to_representation
+from components.generation.training import TrainResult, load_generator, train_generator
 
 __all__ = [
     "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
@@ -53,4 +55,5 @@ __all__ = [
     "p_sample", "palm_direction", "palm_keypoint_indices", "penetration_energy", "q_sample", "refine_grasps",
     "refinement_energy", "refinement_problem", "representation_dim", "rotation_z", "sample", "solve_ik",
     "tau_at", "timestep_embedding", "to_representation", "train_diffusion", "yaw_of",
+    "GraspDataset", "TrainResult", "load_generator", "object_cloud", "posed_clouds", "scene_pivot", "train_generator",
 ]

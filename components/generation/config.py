@@ -82,6 +82,9 @@ class GeneratorConfig(Section):
     grad_clip: float = Field(1.0, ge=0.0, description="Max global gradient norm (0 = no clipping).")
     seed: int = Field(0, description="Seed of the weight initialisation, minibatches, noise and timesteps.")
     log_every: int = Field(100, ge=1, description="Steps between progress callbacks.")
+    checkpoint_every: int = Field(
+        1000, ge=1, description="Optimiser steps between training checkpoints (one is also written at the end); "
+        "an interrupted run resumes from the last one.")
 
     @model_validator(mode="after")
     def _check(self) -> "GeneratorConfig":
