@@ -8,6 +8,7 @@
     multigrasp synthesize --profile smoke       # only the synthesize stage (scenes must be done)
     multigrasp evaluate pregrasp --source synthetic   # Q1 / PN / Div table of the synthesised grasps
     multigrasp evaluate execution                     # lift success of the specialists (Syn-Pl / Com / Geo)
+    multigrasp generate --objects cube,cylinder --n 16  # pre-grasps from the trained generator
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp bench kinematics --json out.json # FK + distance timings
     multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
@@ -97,6 +98,20 @@ def build_parser() -> argparse.ArgumentParser:
                                     "measure Q1 and PN of the accepted ones, write Parquet tables, statistics and "
                                     "render grids (MLflow). The scenes stage must be done for the same config.")
     _config_args(sy)
+
+    ge = sub.add_parser("generate", help="pre-grasps for any objects from the trained generator (+ IK, refinement, renders)",
+                        description="Sample pre-grasps with the train-generator stage's model for a sampled scene of "
+                                    "--objects (or the scene of --placement), convert them by IK, refine them, and "
+                                    "write grasps.json, scene.json and a render grid to <workdir>/results/generated/.")
+    ge.add_argument("--objects", type=lambda s: [x for x in s.split(",") if x], default=[],
+                    help="comma-separated object names (library or user meshes), e.g. cube,cylinder")
+    ge.add_argument("--n", type=int, default=16, help="grasps to generate (default 16)")
+    ge.add_argument("--palm-direction", type=float, default=None, metavar="DEG",
+                    help="palm direction about z in degrees (default: a random direction per grasp)")
+    ge.add_argument("--placement", type=Path, default=None, metavar="FILE",
+                    help="scene JSON ({'objects': [{'name', 'position', 'quat_xyzw'}]}) instead of a sampled scene")
+    ge.add_argument("--seed", type=int, default=0, help="seed of the scene sampling and of the diffusion noise")
+    _config_args(ge)
 
     ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split)",
                         description="Write an evaluation table to <workdir>/results/ (JSON + markdown) and log it "
@@ -237,6 +252,16 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from flows.generate import generate
+
+    cfg = _load(args)
+    report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed)
+    print(f"{report.n} grasp(s) in {report.folder}  (sampling + IK {report.seconds['sample_and_ik_s']} s, refinement "
+          f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "verbose", False):  # before Prefect is imported: it reads its level once
@@ -246,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui,
-                "bench": _cmd_bench, "evaluate": _cmd_evaluate,
+                "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
                 "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}
     try:

@@ -25,6 +25,7 @@ from components.errors import MultigraspError
 from components.execution.lift_config import LiftEnvConfig
 from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
+from tasks.generator import GeneratorStageConfig
 from tasks.pointnet import PointNetStageConfig
 from tasks.scenes import ScenesStageConfig
 from tasks.specialists import SpecialistsStageConfig
@@ -66,6 +67,8 @@ class PipelineConfig(Section):
                                             description="Grasp synthesis stage (optimiser, metrics, scenes, renders).")
     lift: LiftEnvConfig = Field(default_factory=LiftEnvConfig,
                                 description="PyBullet lift environment of the execution policies (physics, actions, reward).")
+    generator: GeneratorStageConfig = Field(default_factory=GeneratorStageConfig,
+                                            description="Diffusion pre-grasp generator, its IK and refinement.")
     pointnet: PointNetStageConfig = Field(default_factory=PointNetStageConfig,
                                           description="Pre-training of the point-cloud encoder (pointnet stage).")
     specialists: SpecialistsStageConfig = Field(default_factory=SpecialistsStageConfig,

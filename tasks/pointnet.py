@@ -67,14 +67,15 @@ def training_clouds(hand, library, lift: LiftEnvConfig, stage: PointNetStageConf
     return torch.as_tensor(np.stack(clouds), dtype=torch.float32)
 
 
-def plot_history(path: Path, history: list[dict]) -> Path:
+def plot_history(path: Path, history: list[dict], ylabel: str = "Chamfer loss (coordinates / input_scale_m)") -> Path:
+    """Loss per step (log scale) as a PNG."""
     from matplotlib.figure import Figure  # no pyplot: no global state
 
     fig = Figure(figsize=(5, 3))
     ax = fig.add_subplot()
     ax.plot([h["step"] for h in history], [h["loss"] for h in history])
     ax.set_xlabel("step")
-    ax.set_ylabel("Chamfer loss (coordinates / input_scale_m)")
+    ax.set_ylabel(ylabel)
     ax.set_yscale("log")
     fig.tight_layout()
     return atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))

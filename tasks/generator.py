@@ -1,0 +1,100 @@
+"""The ``train-generator`` stage: the diffusion pre-grasp generator trained on the synthesised grasps
+(paper §"Multi-object Grasp Generation"), and the ``multigrasp generate`` command's work.
+
+One unit, ``stage``: the palm-aligned dataset of the synthesis table's grasps of ``generator.splits``
+(:class:`components.generation.GraspDataset`), :func:`components.generation.train_generator` with its
+checkpoint ``generator.pt`` in the unit folder -- written every ``model.checkpoint_every`` steps, so a
+killed training resumes from the last checkpoint (and a finished one is served from cache) --
+``history.json`` and ``loss.png``.
+
+``records_source='lowest_energy'`` (smoke profile only, like the specialists stage) trains on the
+lowest-energy candidates of each scene when the tiny smoke synthesis accepts none: plumbing, not results.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Literal
+
+from prefect import task
+from pydantic import Field
+
+from components.config_base import Section
+from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
+from components.objects.config import ObjectsConfig
+from tasks.artifacts import Manifest, atomic_write_json
+from tasks.pointnet import plot_history
+from tasks.preflight import cache_dir
+from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
+
+GENERATOR_CODE_DIRS = ("components/generation", "components/hand", "assets/hand", "components/objects",
+                       "assets/objects", "tasks/generator.py")
+
+
+class GeneratorStageConfig(Section):
+    """The generator: model and training, which grasps it learns from, IK and refinement of its samples."""
+
+    model: GeneratorConfig = Field(default_factory=GeneratorConfig, description="Network, diffusion and training.")
+    ik: IKConfig = Field(default_factory=IKConfig, description="Keypoints -> (p, R, q).")
+    refine: RefineConfig = Field(default_factory=RefineConfig, description="Refinement of generated grasps.")
+    splits: list[str] = Field(default_factory=lambda: ["train"], description="Synthesis splits the generator learns from.")
+    records_source: Literal["accepted", "lowest_energy"] = Field(
+        "accepted", description="accepted: the synthesis stage's accepted grasps. lowest_energy: per scene the "
+        "lowest-energy candidates (smoke profile only: its synthesis accepts none; results mean nothing).")
+    lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates per scene.")
+
+
+def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):
+    """The synthesis rows the generator learns from (``accepted`` set on the chosen rows)."""
+    import pandas as pd
+
+    accepted = pd.read_parquet(synthesis.path("grasps"))
+    if stage.records_source == "accepted":
+        frame = accepted
+    else:
+        both = [f for f in (accepted, pd.read_parquet(synthesis.path("rejected"))) if len(f)]
+        frame = pd.concat(both, ignore_index=True) if both else accepted
+        if len(frame):
+            frame = frame.sort_values(["scene_id", "energy"]).groupby("scene_id", sort=True).head(
+                stage.lowest_energy_per_scene).copy()
+            frame["accepted"] = True
+    if len(frame):
+        frame = frame[frame["split"].isin(stage.splits)
+                      & (frame["object_names"].map(len) <= stage.model.max_objects)]
+    return frame
+
+
+def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, objects: ObjectsConfig, hand_cfg,
+               device: str, torch_threads: int, cache: Path) -> UnitOutput:
+    import torch
+
+    from components.generation import GraspDataset, train_generator
+    from components.hand import HandModel
+    from components.objects import ObjectLibrary
+
+    if torch_threads:
+        torch.set_num_threads(torch_threads)
+    hand = HandModel(hand_cfg)
+    library = ObjectLibrary(objects, cache_dir=cache)
+    dataset = GraspDataset.from_frame(training_frame(synthesis, stage), library, hand, stage.model)
+
+    def progress(step: int, total: int, info: dict) -> None:
+        print(f"train-generator step {step}/{total} loss {info['loss']:.4f} ETA {info['eta_s']:.0f}s",
+              file=sys.stderr, flush=True)
+
+    result = train_generator(dataset, stage.model, folder / "generator.pt", progress, device=device)
+    history = atomic_write_json(folder / "history.json", result.history)
+    plot = plot_history(folder / "loss.png", result.history, ylabel="denoising loss (eps MSE)")
+    last = result.history[-1]["loss"] if result.history else float("nan")
+    return UnitOutput(files={"generator": folder / "generator.pt", "history": history, "loss_plot": plot},
+                      metrics={"grasps": len(dataset), "scenes": dataset.scenes, "loss_last": round(float(last), 6)},
+                      meta={"resumed_from": result.resumed_from})
+
+
+@task(name="train-generator", cache_policy=VerifiedUnitCache(), persist_result=True)
+def train_task(spec: UnitSpec, synthesis: Manifest, stage: GeneratorStageConfig, objects: ObjectsConfig, hand_cfg,
+               device: str, torch_threads: int) -> Manifest:
+    """Prefect unit: the trained generator (checkpoint kept in the unit folder: a rerun after a crash resumes)."""
+    return run_unit(spec, lambda folder: train_unit(folder, synthesis, stage, objects, hand_cfg, device, torch_threads,
+                                                    cache_dir(Path(spec.workdir))))
