@@ -1,0 +1,70 @@
+"""The train-generator stage and ``multigrasp generate`` through the CLI: a small synthesis (filters open),
+a tiny generator, generation for an object it never saw (a user mesh), clear errors, cache."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from flows.cli import main
+from tasks.artifacts import read_manifest
+from tasks.units import executions
+from tests.test_synthesize_stage import ACCEPT_ALL, STAGE_YAML
+
+TINY = ["generator.model.train_steps=6", "generator.model.batch_size=4", "generator.model.model_dim=16",
+        "generator.model.heads=2", "generator.model.blocks=1", "generator.model.points_per_object=64",
+        "generator.model.log_every=2", "generator.model.checkpoint_every=3", "generator.ik.steps=5",
+        "generator.refine.steps=3", "generator.records_source=accepted"]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    import trimesh
+
+    folder = tmp_path_factory.mktemp("gen-config")
+    mesh = folder / "block.obj"
+    trimesh.creation.box(extents=(0.04, 0.03, 0.025)).export(mesh)
+    config = folder / "stage.yaml"
+    config.write_text(STAGE_YAML.format(mesh=mesh))
+    workdir = tmp_path_factory.mktemp("gen")
+    base = ["--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY]:
+        base += ["--set", item]
+    assert main(["run", *base, "--until", "train-generator"]) == 0
+    first = executions(workdir)
+    assert main(["run", *base, "--until", "train-generator"]) == 0
+    return workdir, base, first, executions(workdir)
+
+
+def test_train_generator_stage_writes_a_checkpoint_and_a_loss_curve(trained):
+    workdir, _, first, again = trained
+    manifests = [m for m in map(read_manifest, (workdir / "stages" / "train-generator").iterdir()) if m is not None]
+    (manifest,) = manifests
+    history = json.loads(manifest.path("history").read_text())
+    assert history[-1]["step"] == 6 and manifest.metrics["grasps"] >= 1
+    assert manifest.path("loss_plot").is_file()
+    assert "train-generator/stage" in first and again == first  # the second run is served from cache
+
+
+def test_generate_for_an_object_the_generator_never_saw(trained):
+    workdir, base, _, _ = trained
+    # 'block' is the user mesh of the Geo split: the generator trained on the train split only
+    assert main(["generate", "--objects", "cube,block", "--n", "2", "--palm-direction", "90", *base]) == 0
+    (folder,) = (workdir / "results" / "generated").iterdir()
+    grasps = json.loads((folder / "grasps.json").read_text())
+    assert len(grasps["grasps"]) == 2 and len(grasps["grasps"][0]["q"]) == 22
+    assert (folder / "grasps.png").is_file()
+    assert json.loads((folder / "scene.json").read_text())["objects"][1]["name"] == "block"
+
+
+def test_generate_without_a_trained_generator_names_the_command(tmp_path, capsys):
+    assert main(["generate", "--objects", "cube", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    assert "multigrasp run --until train-generator" in capsys.readouterr().err
+
+
+def test_generate_with_an_unknown_object_is_a_one_line_error(trained, capsys):
+    _, base, _, _ = trained
+    assert main(["generate", "--objects", "cube,banana", *base]) == 2
+    err = capsys.readouterr().err
+    assert "banana" in err and "Traceback" not in err
