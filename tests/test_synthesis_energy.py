@@ -282,3 +282,28 @@ def test_pair_initialisation_puts_the_palm_above_the_pair_facing_down_fingers_ac
     along = GraspProblem.build(hand, objects, cfg.model_copy(update={"init_pair_roll": "along"}))
     _, R2, _ = unpack(initial_poses(along, torch.Generator().manual_seed(0))[0])
     assert torch.allclose(R2[:, 0, 2].abs(), torch.ones(32, dtype=DTYPE))
+
+
+def test_contact_excess_is_zero_within_the_tolerance_and_quadratic_beyond():
+    from components.synthesis.energy import contact_excess_energy
+
+    d = torch.tensor([[0.001, -0.002, 0.0]], dtype=DTYPE)
+    assert float(contact_excess_energy(d, 0.002)) == 0.0
+    far = torch.tensor([[0.006, -0.004, 0.0]], dtype=DTYPE)  # (4/2)^2 + (2/2)^2
+    assert float(contact_excess_energy(far, 0.002)) == pytest.approx(5.0)
+    assert float(contact_excess_energy(far, 0.0)) == 0.0  # off
+
+
+def test_excess_and_alignment_weights_enter_the_total(hand, library):
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), IDENTITY),))
+    objects = SceneObjects(library, scene, dtype=DTYPE)
+    cfg = SynthesisConfig(batch_size=4, w_contact_excess=2.0, contact_excess_m=0.002, w_align=1.0)
+    problem = GraspProblem.build(hand, objects, cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    total, terms = energy(problem, x, contacts)
+    no_align, _ = energy(problem, x, contacts, w_align=0.0)
+    assert torch.allclose(total - no_align, terms["align"], atol=1e-5)
+    plain = GraspProblem.build(hand, objects, cfg.model_copy(update={"w_contact_excess": 0.0}))
+    base, _ = energy(plain, x, contacts)
+    assert torch.all(terms["excess"] > 0)  # the initial poses hover centimetres away
+    assert torch.allclose(total - base, 2.0 * terms["excess"], rtol=1e-5)

@@ -265,3 +265,25 @@ def test_mean_filter_reduces_each_objects_contacts_by_their_mean():
     assert float(contact_distance_for_filter(terms, SynthesisConfig())) == pytest.approx(0.012)
     mean_cfg = SynthesisConfig(filter_contact_distance_reduce="mean")
     assert float(contact_distance_for_filter(terms, mean_cfg)) == pytest.approx(0.004)
+
+
+def test_approach_stage_brings_contacts_closer_without_force_closure_and_runs_in_synthesize(hand, library):
+    from components.synthesis.optimizer import approach
+
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), IDENTITY),))
+    cfg = SynthesisConfig(batch_size=4, approach_steps=30, approach_reassign_every=10, mala_steps=5,
+                          refine_steps=5, progress_every=10)
+    problem = GraspProblem.build(hand, SceneObjects(library, scene), cfg)
+    x0, c0 = initial_poses(problem, torch.Generator().manual_seed(0))
+    _, _, t0 = energy_and_grad(problem, x0, c0)
+    x, c, stats = approach(problem, x0, c0)
+    _, _, t1 = energy_and_grad(problem, x, c)
+    assert "approach_seconds" in stats and c.shape == c0.shape
+    assert float(t1["dist"].mean()) < float(t0["dist"].mean())
+    calls = []
+    result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(0),
+                        progress=lambda step, total, info: calls.append((info["stage"], step, total)))
+    assert calls[:3] == [("approach", s, 30) for s in (10, 20, 30)]
+    assert "approach_seconds" in result.stats and torch.isfinite(result.energy).all()
+    off = SynthesisConfig(batch_size=4, mala_steps=5, refine_steps=5)
+    assert "approach_seconds" not in synthesize(hand, library, scene, off, torch.Generator().manual_seed(0)).stats

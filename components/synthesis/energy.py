@@ -111,6 +111,20 @@ def contact_distance_energy(signed_distance: Tensor) -> Tensor:
     return signed_distance.abs().sum(-1)
 
 
+def contact_excess_energy(signed_distance: Tensor, tolerance: float) -> Tensor:
+    """Hinge on the contact distance beyond a tolerance h (``contact_excess_m``):
+
+        E_excess = sum_i (relu(|d_O(c_i)| - h) / h)^2      (dimensionless),
+
+    zero for contacts within h of the surface and quadratic beyond, so a contact hovering a few h off the
+    surface costs more than any force-closure error it could buy through the SDF normal of its off-surface
+    point (E_dist is linear in |d| and, at the official weight 10, a 1 cm hover costs 0.1).
+    h <= 0 returns zeros.   (B, C) -> (B,)."""
+    if tolerance <= 0.0:
+        return torch.zeros_like(signed_distance[..., 0])
+    return (torch.relu(signed_distance.abs() - tolerance) / tolerance).square().sum(-1)
+
+
 def contact_alignment_energy(hand_normals: Tensor, object_normals: Tensor) -> Tensor:
     """Contact alignment of one object (the official release's ``normal_alignment``, there unweighted):
         E_align = sum_i (1 + n_H(c_i) . n_O(c_i)),
@@ -241,7 +255,8 @@ def nearest_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tens
 
 
 def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor, contacts: Tensor,
-                  w_fc: Optional[float] = None, w_dist: Optional[float] = None) -> Tensor:
+                  w_fc: Optional[float] = None, w_dist: Optional[float] = None,
+                  w_align: Optional[float] = None) -> Tensor:
     """FC-aware reassignment of the contacts for a fixed pose (``contact_reassign_every``): the conditional
     mode of the contact-dependent part of E over a small candidate set.  For object j (in order):
 
@@ -252,13 +267,14 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
        (the terms of E that depend on the contacts; E_pen and E_prior depend on the pose only);
     3. object j takes the best set, unless its current contacts score lower (a row's energy never rises).
 
-    ``w_fc`` / ``w_dist`` override the config's weights (MALA ramp, refinement).
+    ``w_fc`` / ``w_dist`` / ``w_align`` override the config's weights (MALA ramp, refinement, approach).
     points, hand_normals (B, K, 3) (detached), contacts (B, n_obj, C) -> (B, n_obj, C) long."""
     import itertools
 
     objects, cfg = problem.objects, problem.cfg
     w_fc = cfg.w_fc if w_fc is None else w_fc
     w_dist = cfg.w_dist if w_dist is None else w_dist
+    w_align = cfg.w_align if w_align is None else w_align
     finger_of = problem.finger_of
     n_fingers, per = int(finger_of.max()) + 1, cfg.contacts_per_object
     batch, n_cand = points.shape[:2]
@@ -275,7 +291,8 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         e = (w_fc * force_closure_error(pts, n, objects.positions[j], problem.lever_lengths[j], cfg.fc_margin,
                                         cfg.fc_friction, gate)
-             + w_dist * contact_distance_energy(d) + cfg.w_align * contact_alignment_energy(nrm, n))
+             + w_dist * contact_distance_energy(d) + w_align * contact_alignment_energy(nrm, n)
+             + cfg.w_contact_excess * contact_excess_energy(d, cfg.contact_excess_m))
         return e.reshape(batch, n_sets)
 
     with torch.no_grad():
@@ -361,10 +378,11 @@ def hand_points_object_distances(objects: SceneObjects, points: Tensor) -> Tenso
 
 # ============================================================================ the total
 def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None,
-           w_fc: Optional[float] = None) -> tuple[Tensor, dict]:
+           w_fc: Optional[float] = None, w_align: Optional[float] = None) -> tuple[Tensor, dict]:
     """E(H, O) of the module docstring for flat poses x (B, 31) (:mod:`components.synthesis.pose`) and
     contacts (B, n_obj, C).  ``w_dist`` overrides ``cfg.w_dist`` (the refinement raises it), ``w_fc``
-    overrides ``cfg.w_fc`` (the MALA ramp of ``w_fc_ramp_fraction``).
+    overrides ``cfg.w_fc`` (the MALA ramp of ``w_fc_ramp_fraction``; 0 in the approach stage), ``w_align``
+    overrides ``cfg.w_align`` (0 in the approach stage).
 
     Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior`` (unweighted, (B,));
     ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
@@ -377,6 +395,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     cfg, hand, objects = problem.cfg, problem.hand, problem.objects
     w_dist = cfg.w_dist if w_dist is None else w_dist
     w_fc = cfg.w_fc if w_fc is None else w_fc
+    w_align = cfg.w_align if w_align is None else w_align
     p, R, q_param = unpack(x)
     q = problem.effective_joints(q_param)  # (B, 22)
     batch = x.shape[0]
@@ -392,13 +411,14 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         contacts = region_contacts(problem, contacts, candidate_points.detach(), candidate_normals.detach())
     contact_points = gather_contacts(candidate_points, contacts)  # (B, n_obj, C, 3)
     contact_normals = gather_contacts(candidate_normals, contacts)
-    fc, dist, align, contact_dist = [], [], [], []
+    fc, dist, align, excess, contact_dist = [], [], [], [], []
     for j in range(objects.n_objects):
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
                                       cfg.fc_margin, cfg.fc_friction, gate))
         dist.append(contact_distance_energy(d))
+        excess.append(contact_excess_energy(d, cfg.contact_excess_m))
         align.append(contact_alignment_energy(contact_normals[:, j], n))
         contact_dist.append(d.detach().abs())
     fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
@@ -422,9 +442,10 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 
     prior = joint_limit_energy(hand, q)
     fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
+    excess_total = torch.stack(excess, dim=-1).sum(-1)
     align_total = align_per_object.sum(-1)
     total = (w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
-             + cfg.w_align * align_total)
+             + w_align * align_total + cfg.w_contact_excess * excess_total)
 
     with torch.no_grad():
         depth_objects = torch.maximum(torch.relu(-d_hand.reshape(batch, n_obj, n_pts)).amax(-1),
@@ -432,7 +453,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         depth_table = torch.relu(objects.table_height - lowest).amax(-1)
         depth_self = torch.relu(-pairs).amax(-1) if pairs.shape[1] else torch.zeros_like(depth_table)
         terms = {
-            "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total,
+            "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total, "excess": excess_total,
             "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
             "pen_object_points": pen_object_points, "pen_hand_points": pen_hand_points,
             "pen_self": pen_self, "pen_table": pen_table,
@@ -447,11 +468,12 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 
 
 def energy_and_grad(problem: GraspProblem, x: Tensor, contacts: Tensor,
-                    w_dist: Optional[float] = None, w_fc: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
+                    w_dist: Optional[float] = None, w_fc: Optional[float] = None,
+                    w_align: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
     """Energy (B,), its gradient wrt x (B, D) and the detached terms.  Rows are independent, so the
     gradient of the batch sum is every row's own gradient."""
     with torch.enable_grad():
         x = x.detach().requires_grad_(True)
-        total, terms = energy(problem, x, contacts, w_dist, w_fc)
+        total, terms = energy(problem, x, contacts, w_dist, w_fc, w_align)
         (grad,) = torch.autograd.grad(total.sum(), x)
     return total.detach(), grad, {k: v.detach() for k, v in terms.items()}

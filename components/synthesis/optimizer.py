@@ -68,12 +68,12 @@ def fc_weight_at(t: int, cfg: SynthesisConfig) -> float:
 
 
 def reassign_contacts(problem: GraspProblem, x: Tensor, contacts: Tensor, w_fc: Optional[float] = None,
-                      w_dist: Optional[float] = None) -> Tensor:
+                      w_dist: Optional[float] = None, w_align: Optional[float] = None) -> Tensor:
     """:func:`~components.synthesis.energy.best_contacts` at the poses x (B, D).  -> contacts (B, n_obj, C)."""
     with torch.no_grad():
         p, R, q = unpack(x)
         points, normals = problem.hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
-        return best_contacts(problem, points, normals, contacts, w_fc=w_fc, w_dist=w_dist)
+        return best_contacts(problem, points, normals, contacts, w_fc=w_fc, w_dist=w_dist, w_align=w_align)
 
 
 def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator,
@@ -261,6 +261,41 @@ def run_mala(problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torc
                  "temperature": temperature_at(t, cfg)})
     stats = {"mala_accept_rate": accepted / max(cfg.mala_steps, 1), "mala_seconds": time.perf_counter() - start}
     return annealer.state, stats
+
+
+def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,
+             progress: Optional[ProgressFn] = None) -> tuple[Tensor, Tensor, dict]:
+    """Approach stage (``approach_steps`` > 0), run before MALA: Adam (lr ``approach_lr``) on
+
+        E_approach = w_dist E_dist + w_pen E_pen + w_prior E_prior      (w_fc = w_align = 0),
+
+    with the contacts reassigned every ``approach_reassign_every`` steps by
+    :func:`~components.synthesis.energy.best_contacts` scored by distance (and alignment) only, so each
+    object's contacts follow the fingers that are nearest to it.  Brings the fingers onto the objects
+    without force closure pulling contacts through their SDF normals; the last pose is returned (E_approach
+    has no force-closure term that keep-best would have to trade against).
+    -> (x (B, D), contacts (B, n_obj, C), stats)."""
+    cfg = problem.cfg
+    start = time.perf_counter()
+    w_dist = cfg.w_dist if cfg.approach_w_dist is None else cfg.approach_w_dist
+    weights = {"w_fc": 0.0, "w_align": cfg.approach_w_align, "w_dist": w_dist}
+    x = x.detach().clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([x], lr=cfg.approach_lr)
+    every = cfg.approach_reassign_every if cfg.contact_assignment != "nearest" else 0
+    for t in range(cfg.approach_steps):
+        if every > 0 and t % every == 0:
+            contacts = reassign_contacts(problem, x.detach(), contacts, **weights)
+        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, **weights)
+        contacts = terms[CONTACT_INDICES]
+        optimizer.zero_grad()
+        x.grad = grad
+        optimizer.step()
+        _report(progress, cfg, t + 1, cfg.approach_steps, start,
+                {"stage": "approach", "energy_mean": float(energy.mean())})
+    x = x.detach()
+    if every > 0 and cfg.approach_steps > 0:
+        contacts = reassign_contacts(problem, x, contacts, **weights)
+    return x, contacts, {"approach_seconds": time.perf_counter() - start}
 
 
 def refine(problem: GraspProblem, x: Tensor, contacts: Tensor,

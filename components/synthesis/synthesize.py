@@ -23,7 +23,7 @@ from components.synthesis.config import SynthesisConfig
 from components.synthesis.energy import CANDIDATE_POINTS, CONTACT_INDICES, GraspProblem, energy_and_grad, gather_contacts
 from components.synthesis.filtering import count_reasons, filter_grasps
 from components.synthesis.initializations import initial_poses
-from components.synthesis.optimizer import ProgressFn, refine, run_mala
+from components.synthesis.optimizer import ProgressFn, approach, refine, run_mala
 from components.synthesis.pose import unpack
 from components.synthesis.scene_objects import SceneObjects
 
@@ -76,12 +76,16 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
 
     ``generator`` drives every random choice (initial poses and contacts, proposal noise, contact switches,
     Metropolis tests); ``progress(step, total, info)`` is called every ``cfg.progress_every`` steps of
-    each stage (``info['stage']`` is ``'mala'`` or ``'refine'``, with ``eta_s`` for that stage).
+    each stage (``info['stage']`` is ``'approach'`` (``approach_steps`` > 0), ``'mala'`` or ``'refine'``,
+    with ``eta_s`` for that stage).
     """
     start = time.perf_counter()
     objects = SceneObjects(library, scene, hand.device, hand.dtype)
     problem = GraspProblem.build(hand, objects, cfg)
     x, contacts = initial_poses(problem, generator)
+    approach_stats = {}
+    if cfg.approach_steps > 0:
+        x, contacts, approach_stats = approach(problem, x, contacts, progress)
     state, mala_stats = run_mala(problem, x, contacts, generator, progress)
     x, contacts, refine_stats = refine(problem, state.x, state.contacts, progress)
     energy, _, terms = energy_and_grad(problem, x, contacts)
@@ -90,7 +94,7 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
     accepted, reasons = filter_grasps(terms, cfg)
     p, R, q = unpack(x)
     q = problem.effective_joints(q)
-    stats = {**mala_stats, **refine_stats, "seconds": time.perf_counter() - start,
+    stats = {**approach_stats, **mala_stats, **refine_stats, "seconds": time.perf_counter() - start,
              "accept_rate": float(accepted.float().mean())}
     return SynthesisResult(scene=scene, object_names=list(objects.names), p=p, R=R, q=q, contacts=contacts,
                            contact_regions=hand.contact_region_of[contacts], contact_points=contact_points,
