@@ -13,6 +13,7 @@
     multigrasp bench kinematics --json out.json # FK + distance timings
     multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
     multigrasp bench sim --json out.json        # lift env steps/s vs bare PyBullet (overhead_ratio)
+    multigrasp bench generation --json out.json # 256 pre-grasps: sampling + IK + refinement time
 
 Every command that reads a config takes ``--profile``, ``--config FILE``, repeatable
 ``--set a.b=value``, ``--workdir``, ``--device`` and ``--runner``.
@@ -133,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="speed benchmarks that write JSON (see benchmarks/)",
                            description="Run a benchmark and write its JSON (medians of several runs).")
-    bench.add_argument("name", choices=["kinematics", "synthesis", "sim"], help="which benchmark")
+    bench.add_argument("name", choices=["kinematics", "synthesis", "sim", "generation"], help="which benchmark")
     bench.add_argument("--json", type=Path, required=True, metavar="OUT", help="where to write the JSON result")
     bench.add_argument("--repeats", type=int, default=7, help="timed runs (median reported); default 7")
     bench.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
@@ -219,6 +220,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise MultigraspError(f"--steps-scale must be > 0 (got {args.steps_scale}) — e.g. 0.01 for a quick check")
         result = run_synthesis_benchmark(repeats=args.repeats, threads=args.threads, device=args.device,
                                          steps_scale=args.steps_scale)
+    elif args.name == "generation":
+        from benchmarks.generation import run_generation_benchmark
+
+        result = run_generation_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
     elif args.name == "sim":
         from benchmarks.sim import run_sim_benchmark
 

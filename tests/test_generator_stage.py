@@ -68,3 +68,12 @@ def test_generate_with_an_unknown_object_is_a_one_line_error(trained, capsys):
     assert main(["generate", "--objects", "cube,banana", *base]) == 2
     err = capsys.readouterr().err
     assert "banana" in err and "Traceback" not in err
+
+
+def test_bench_generation_reports_its_timings():
+    from benchmarks.generation import run_generation_benchmark
+
+    result = run_generation_benchmark(repeats=1, threads=1, batch=2)
+    assert result["time_256_s"] is None and result["workload"]["batch"] == 2  # only a 256 batch is the paper's figure
+    assert result["time_s"] == pytest.approx(result["sample_s"] + result["ik_s"] + result["refine_s"], abs=2e-3)
+    assert result["threads"] == 1
