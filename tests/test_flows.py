@@ -113,7 +113,8 @@ def test_deleted_artifact_is_recomputed_not_trusted(tmp_path):
 def test_status_lists_missing_then_done(tmp_path, capsys):
     cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
     states = {r.name: r.state for r in status(cfg)}
-    assert states == {"scenes": "missing", "synthesize": "blocked", "pointnet": "missing", "specialists": "blocked"}
+    assert states == {"scenes": "missing", "synthesize": "blocked", "train-generator": "blocked", "pointnet": "missing",
+                      "specialists": "blocked"}
     assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path)] + sum([["--set", s] for s in SMALL], [])) == 0
     assert "missing" in capsys.readouterr().out
 
