@@ -120,8 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo, Syn-train-pairs).")
     ev.add_argument("target", choices=["pregrasp", "execution"],
                     help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
-    ev.add_argument("--source", choices=["synthetic"], default=None,
-                    help="pregrasp: where the pre-grasps come from (synthetic = the synthesize stage); required there")
+    ev.add_argument("--source", choices=["synthetic", "generated"], default=None,
+                    help="pregrasp: where the pre-grasps come from (synthetic = the synthesize stage, generated = the "
+                         "train-generator stage's model on the evaluation scenes); required there")
     ev.add_argument("--ablations", action="store_true",
                     help="execution: also train and evaluate the specialists of the ablations (w/o Goal, w/o Spe-*)")
     _config_args(ev)

@@ -27,6 +27,8 @@ from tasks.artifacts import atomic_write_json, atomic_write_text
 
 #: The paper's Syn row (Syn-Pl, MultiGrasp Table "pre-grasp quality"; DESIGN §6), for comparison only.
 PAPER_SYN_ROW = {"setting": "Syn (paper, Pl)", "q1": 0.30, "pn_mm": 1.64, "div_deg": 8.54}
+#: The paper's Gen-Pl row (after refinement), for comparison only.
+PAPER_GEN_ROW = {"setting": "Gen (paper, Pl)", "q1": 0.29, "pn_mm": 1.67, "div_deg": 9.24}
 
 
 @dataclass(frozen=True)
@@ -113,8 +115,15 @@ def _present(path: Path, wanted: list[str]) -> list[str]:
 
 
 #: ``--source`` → rows builder (issue 4 adds ``generated``).
+def _generated_rows(cfg: PipelineConfig) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    from flows.evaluate_generated import generated_rows
+
+    return generated_rows(cfg)
+
+
 SOURCES: dict[str, Callable[[PipelineConfig], tuple[list[dict[str, Any]], dict[str, str]]]] = {
     "synthetic": synthetic_rows,
+    "generated": _generated_rows,
 }
 
 
@@ -133,7 +142,7 @@ def pregrasp_markdown(rows: list[dict[str, Any]], source: str) -> str:
         rate = "–" if row["accept_rate"] is None else f"{100 * row['accept_rate']:.1f} %"
         lines.append(f"| {row['setting']} | {_fmt(row['q1'], 3)} | {_fmt(row['pn_mm'], 2)} | "
                      f"{_fmt(row['div_deg'], 2)} | {rate} | {row['n']} |")
-    paper = PAPER_SYN_ROW
+    paper = PAPER_GEN_ROW if source == "generated" else PAPER_SYN_ROW
     lines.append(f"| {paper['setting']} | {paper['q1']:.2f} | {paper['pn_mm']:.2f} | {paper['div_deg']:.2f} | – | – |")
     lines += ["", "Q1: mean over accepted grasps (min over objects). PN: mean maximal penetration. "
                   "Div: mean per-joint std of the accepted q. `–`: no accepted grasp in that setting."]
@@ -157,7 +166,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str) -> PregraspReport:
     run_id = tracker.start_run(f"evaluate:pregrasp:{source}", tags={"command": "evaluate", "evaluation": "pregrasp",
                                                                      "source": source, "profile": cfg.profile, **tags})
     metrics = {f"{row['setting']}/{key}": row[key] for row in rows
-               for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n") if row[key] is not None}
+               for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n", "time_256_s") if row.get(key) is not None}
     tracker.log_metrics(run_id, metrics)
     tracker.log_artifact(run_id, json_path, "results")
     tracker.log_artifact(run_id, markdown_path, "results")

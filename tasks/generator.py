@@ -43,6 +43,8 @@ class GeneratorStageConfig(Section):
         "accepted", description="accepted: the synthesis stage's accepted grasps. lowest_energy: per scene the "
         "lowest-energy candidates (smoke profile only: its synthesis accepts none; results mean nothing).")
     lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates per scene.")
+    eval_scenes: int = Field(16, ge=1, description="evaluate pregrasp --source generated: scenes per split (Pl / Com / Geo).")
+    eval_grasps_per_scene: int = Field(16, ge=1, description="...and grasps generated per scene.")
 
 
 def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):

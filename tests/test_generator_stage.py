@@ -77,3 +77,18 @@ def test_bench_generation_reports_its_timings():
     assert result["time_256_s"] is None and result["workload"]["batch"] == 2  # only a 256 batch is the paper's figure
     assert result["time_s"] == pytest.approx(result["sample_s"] + result["ik_s"] + result["refine_s"], abs=2e-3)
     assert result["threads"] == 1
+
+
+def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
+    workdir, base, _, _ = trained
+    argv = ["evaluate", "pregrasp", "--source", "generated", *base,
+            "--set", "generator.eval_scenes=1", "--set", "generator.eval_grasps_per_scene=2"]
+    assert main(argv) == 0
+    report = json.loads((workdir / "results" / "pregrasp_generated.json").read_text())
+    rows = {r["setting"]: r for r in report["rows"]}
+    assert set(rows) == {"Gen-Pl", "Gen-Com", "Gen-Geo"}
+    assert rows["Gen-Pl"]["n"] == 0 and rows["Gen-Pl"]["q1"] is None  # this small config has no Pl scenes
+    for name in ("Gen-Com", "Gen-Geo"):  # Geo: a user mesh the generator never trained on
+        assert rows[name]["n"] == 2 and rows[name]["q1"] >= 0.0 and rows[name]["pn_mm"] >= 0.0
+        assert rows[name]["time_s"] > 0 and rows[name]["div_deg"] is not None
+    assert "Gen (paper, Pl)" in (workdir / "results" / "pregrasp_generated.md").read_text()

@@ -1,0 +1,81 @@
+"""``multigrasp evaluate pregrasp --source generated``: pre-grasp quality of the trained generator on the
+evaluation scenes (paper Table "pre-grasp quality", Gen rows).
+
+For each setting ``Gen-Pl`` / ``Gen-Com`` / ``Gen-Geo``, the first ``generator.eval_scenes`` scenes of that
+split (the ``scenes`` stage's, the same ones synthesis saw) each get ``generator.eval_grasps_per_scene``
+grasps -- random palm directions, DDPM sampling, IK, refinement -- whose Q1, PN and Div are measured as
+for the synthetic rows (``synthesis.metrics``).  ``time_s`` is the wall time of sampling + IK + refinement
+of the setting's grasps and ``time_256_s`` that time scaled to 256 grasps.  Every generated grasp counts
+(there is no filter), so ``accept_rate`` is 1.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from components.errors import MultigraspError
+from flows.config import PipelineConfig
+
+GENERATED_SETTINGS = (("Gen-Pl", "Pl"), ("Gen-Com", "Com"), ("Gen-Geo", "Geo"))
+
+
+def generated_rows(cfg: PipelineConfig) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    import pandas as pd
+    import torch
+
+    from components.generation import generate_grasps, load_generator, posed_clouds, refine_grasps
+    from components.hand import HandModel
+    from components.metrics import penetration_depth, q1_grasps
+    from components.objects import ObjectLibrary, Scene
+    from components.synthesis import SceneObjects
+    from flows.evaluate import Setting, setting_row
+    from flows.pipeline import stage_output
+    from tasks.preflight import cache_dir
+    from tasks.synthesize import read_scene_records
+
+    generator, scenes = stage_output(cfg, "train-generator"), stage_output(cfg, "scenes")
+    if generator is None or scenes is None:
+        raise MultigraspError("evaluate pregrasp --source generated needs a trained generator for this config — run "
+                              "`multigrasp run --until train-generator` first (same --profile / --config / --set)")
+    stage, metrics = cfg.generator, cfg.synthesis.metrics
+    hand = HandModel(cfg.hand)
+    library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
+    model = load_generator(generator.path("generator"))
+    records = read_scene_records(scenes)
+    rows = []
+    for name, split in GENERATED_SETTINGS:
+        picked = [r for r in records if r["split"] == split and len(r["objects"]) <= stage.model.max_objects]
+        picked = picked[: stage.eval_scenes]
+        frame_rows, seconds = [], 0.0
+        for number, record in enumerate(picked):
+            scene = Scene.from_dict(record["scene"])
+            positions = np.array([pl.position for pl in scene.objects])
+            quats = np.array([pl.quat_xyzw for pl in scene.objects])
+            clouds, mask = posed_clouds(library, scene.names, positions, quats, stage.model.points_per_object,
+                                        stage.model.max_objects)
+            n = stage.eval_grasps_per_scene
+            gen = torch.Generator().manual_seed(cfg.run.seed * 7919 + number)
+            yaws = torch.rand(n, generator=gen) * 2.0 * math.pi
+            start = time.perf_counter()
+            with torch.no_grad():
+                p, R, q = generate_grasps(model, hand, torch.as_tensor(clouds, dtype=torch.float32)[None].expand(n, -1, -1, -1),
+                                          yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen)
+            objects = SceneObjects(library, scene, hand.device, hand.dtype)
+            refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine)
+            seconds += time.perf_counter() - start
+            q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
+            pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
+            for i in range(n):
+                frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy()})
+        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q"])
+        row = setting_row(Setting(name, split), frame, len(frame))
+        row["time_s"] = round(seconds, 3)
+        row["time_256_s"] = round(seconds / len(frame) * 256, 2) if len(frame) else None
+        rows.append(row)
+    return rows, {"generator_manifest": str(Path(generator.folder) / "manifest.json"),
+                  "generator_run": generator.producer_run_id or ""}
