@@ -124,7 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pregrasp: where the pre-grasps come from (synthetic = the synthesize stage, generated = the "
                          "train-generator stage's model on the evaluation scenes); required there")
     ev.add_argument("--ablations", action="store_true",
-                    help="execution: also train and evaluate the specialists of the ablations (w/o Goal, w/o Spe-*)")
+                    help="execution: also train and evaluate the specialists of the ablations (w/o Goal, w/o Spe-*); "
+                         "pregrasp --source generated: the generator's (Joint Angles, w/o Obj Embd, w/o Refinement) "
+                         "-> results/ablation_generator.json")
     _config_args(ev)
 
     ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
@@ -252,7 +254,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if args.source is None:
         raise MultigraspError("evaluate pregrasp needs --source (synthetic) — e.g. multigrasp evaluate pregrasp --source synthetic")
-    report = evaluate_pregrasp(cfg, args.source)
+    report = evaluate_pregrasp(cfg, args.source, ablations=args.ablations)
     print(report.markdown)
     print(f"written: {report.json_path}  {report.markdown_path}")
     return 0

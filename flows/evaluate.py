@@ -149,8 +149,9 @@ def pregrasp_markdown(rows: list[dict[str, Any]], source: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate_pregrasp(cfg: PipelineConfig, source: str) -> PregraspReport:
-    """Write ``results/pregrasp_<source>.json`` + ``.md`` and log both to their own MLflow run."""
+def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False) -> PregraspReport:
+    """Write ``results/pregrasp_<source>.json`` + ``.md`` and log both to their own MLflow run; with
+    ``ablations`` (source ``generated``) also ``results/ablation_generator.json``."""
     from flows.runtime import make_tracker
 
     if source not in SOURCES:
@@ -161,14 +162,27 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str) -> PregraspReport:
                                                                          "profile": cfg.profile, **tags})
     markdown = pregrasp_markdown(rows, source)
     markdown_path = atomic_write_text(results / f"pregrasp_{source}.md", markdown)
+    extra = []
+    if ablations:
+        if source != "generated":
+            raise MultigraspError("--ablations applies to --source generated (the generator's ablations)")
+        from flows.evaluate_generated import generator_ablation_rows
+
+        ablation_rows = generator_ablation_rows(cfg)
+        extra.append(atomic_write_json(results / "ablation_generator.json", {"rows": ablation_rows, "profile": cfg.profile}))
+        rows_for_metrics = [{**r, "setting": f"ablation {r['setting']}"} for r in ablation_rows]
+    else:
+        rows_for_metrics = []
 
     tracker = make_tracker(cfg)
     run_id = tracker.start_run(f"evaluate:pregrasp:{source}", tags={"command": "evaluate", "evaluation": "pregrasp",
                                                                      "source": source, "profile": cfg.profile, **tags})
-    metrics = {f"{row['setting']}/{key}": row[key] for row in rows
+    metrics = {f"{row['setting']}/{key}": row[key] for row in rows + rows_for_metrics
                for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n", "time_256_s") if row.get(key) is not None}
     tracker.log_metrics(run_id, metrics)
     tracker.log_artifact(run_id, json_path, "results")
     tracker.log_artifact(run_id, markdown_path, "results")
+    for path in extra:
+        tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)
     return PregraspReport(rows=rows, json_path=json_path, markdown_path=markdown_path, markdown=markdown)

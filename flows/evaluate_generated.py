@@ -24,7 +24,33 @@ from flows.config import PipelineConfig
 GENERATED_SETTINGS = (("Gen-Pl", "Pl"), ("Gen-Com", "Com"), ("Gen-Geo", "Geo"))
 
 
-def generated_rows(cfg: PipelineConfig) -> tuple[list[dict[str, Any]], dict[str, str]]:
+#: The generator ablations of the paper (Table "ablations", generation): config overrides of each variant.
+GENERATOR_ABLATIONS: dict[str, dict[str, Any]] = {
+    "Ours": {},
+    "Joint Angles": {"generator.model.representation": "joints"},
+    "w/o Obj Embd": {"generator.model.use_object_embedding": False},
+    "w/o Refinement": {"generator.refine.steps": 0},
+}
+
+
+def generator_ablation_rows(cfg: PipelineConfig) -> list[dict[str, Any]]:
+    """Q1 / PN on the Pl scenes of every :data:`GENERATOR_ABLATIONS` variant; variants that change the model
+    are trained first (the train-generator stage with the overrides: cached units)."""
+    from flows import train_generator
+    from flows.evaluate_execution import ablation_config
+    from flows.pipeline import run_pipeline
+
+    rows = []
+    for name, overrides in GENERATOR_ABLATIONS.items():
+        variant = ablation_config(cfg, overrides)
+        if any(key.startswith("generator.model") for key in overrides):
+            run_pipeline(variant, [train_generator], command=f"ablation:{name}")
+        pl = generated_rows(variant, settings=(("Gen-Pl", "Pl"),))[0][0]
+        rows.append({"setting": name, "q1": pl["q1"], "pn_mm": pl["pn_mm"], "n": pl["n"], "overrides": overrides})
+    return rows
+
+
+def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS) -> tuple[list[dict[str, Any]], dict[str, str]]:
     import pandas as pd
     import torch
 
@@ -48,7 +74,7 @@ def generated_rows(cfg: PipelineConfig) -> tuple[list[dict[str, Any]], dict[str,
     model = load_generator(generator.path("generator"))
     records = read_scene_records(scenes)
     rows = []
-    for name, split in GENERATED_SETTINGS:
+    for name, split in settings:
         picked = [r for r in records if r["split"] == split and len(r["objects"]) <= stage.model.max_objects]
         picked = picked[: stage.eval_scenes]
         frame_rows, seconds = [], 0.0

@@ -92,3 +92,23 @@ def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
         assert rows[name]["n"] == 2 and rows[name]["q1"] >= 0.0 and rows[name]["pn_mm"] >= 0.0
         assert rows[name]["time_s"] > 0 and rows[name]["div_deg"] is not None
     assert "Gen (paper, Pl)" in (workdir / "results" / "pregrasp_generated.md").read_text()
+
+
+def test_generator_ablations_file_has_the_papers_rows(trained, monkeypatch):
+    import flows.evaluate_generated as eg
+
+    # keep the test short: the refinement ablation (no retraining) and Ours
+    monkeypatch.setattr(eg, "GENERATOR_ABLATIONS", {"Ours": {}, "w/o Refinement": {"generator.refine.steps": 0}})
+    workdir, base, _, _ = trained
+    argv = ["evaluate", "pregrasp", "--source", "generated", "--ablations", *base,
+            "--set", "generator.eval_scenes=1", "--set", "generator.eval_grasps_per_scene=2"]
+    assert main(argv) == 0
+    rows = json.loads((workdir / "results" / "ablation_generator.json").read_text())["rows"]
+    assert [r["setting"] for r in rows] == ["Ours", "w/o Refinement"]
+    assert all(set(r) >= {"q1", "pn_mm", "n"} for r in rows)
+
+
+def test_generator_ablations_list_the_papers_variants():
+    import flows.evaluate_generated as eg
+
+    assert list(eg.GENERATOR_ABLATIONS) == ["Ours", "Joint Angles", "w/o Obj Embd", "w/o Refinement"]
