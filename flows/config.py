@@ -190,6 +190,14 @@ def load_config(
     return build_config(tree)
 
 
+def with_overrides(cfg: PipelineConfig, overrides: dict[str, Any]) -> PipelineConfig:
+    """``cfg`` with dotted-key overrides applied and validated, as ``--set`` does (ablation variants)."""
+    tree = cfg.model_dump(mode="json")
+    for key, value in overrides.items():
+        tree = _assign(tree, key.split("."), value)
+    return build_config(tree)
+
+
 def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> str:
     """Digest of the named config sections (dotted paths), the part of a cache key from config."""
     from tasks.artifacts import digest

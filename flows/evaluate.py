@@ -168,7 +168,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
             raise MultigraspError("--ablations applies to --source generated (the generator's ablations)")
         from flows.evaluate_generated import generator_ablation_rows
 
-        ablation_rows = generator_ablation_rows(cfg)
+        ablation_rows = generator_ablation_rows(cfg, ours=next((r for r in rows if r["setting"] == "Gen-Pl"), None))
         extra.append(atomic_write_json(results / "ablation_generator.json", {"rows": ablation_rows, "profile": cfg.profile}))
         rows_for_metrics = [{**r, "setting": f"ablation {r['setting']}"} for r in ablation_rows]
     else:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig
+from flows.config import PipelineConfig, with_overrides
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
@@ -91,7 +91,7 @@ def _stage_outputs(cfg: PipelineConfig):
     return outputs
 
 
-def evaluate_split(cfg: PipelineConfig, split: str, scratch: Path, scripted: bool = False,
+def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True) -> SplitResult:
     """Lift the first ``eval_poses`` pre-grasps of ``split`` with their matching specialists (module docstring)."""
     from components.execution.clustering import bin_label
@@ -102,7 +102,7 @@ def evaluate_split(cfg: PipelineConfig, split: str, scratch: Path, scripted: boo
     from tasks.preflight import cache_dir
     from tasks.specialists import select_records
 
-    stage, outputs = cfg.specialists, _stage_outputs(cfg)
+    stage = cfg.specialists
     index = json.loads(outputs["specialists"].path("index").read_text())
     groups: dict[str, list] = {}
     out = SplitResult()
@@ -141,18 +141,6 @@ def evaluate_split(cfg: PipelineConfig, split: str, scratch: Path, scripted: boo
     return out
 
 
-def ablation_config(cfg: PipelineConfig, overrides: dict[str, Any]) -> PipelineConfig:
-    """``cfg`` with dotted overrides applied (validated like --set)."""
-    data = cfg.model_dump(mode="json")
-    for dotted, value in overrides.items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node[key]
-        node[leaf] = value
-    return PipelineConfig.model_validate(data)
-
-
 def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> ExecutionReport:
     """Write the execution tables (module docstring).  With ``ablations`` the specialists of every
     :data:`ABLATIONS` config are trained first (the specialists stage with those overrides: cached units)."""
@@ -161,12 +149,12 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
     from flows.runtime import make_tracker
 
     stage = cfg.specialists
-    _stage_outputs(cfg)
+    outputs = _stage_outputs(cfg)
     results = cfg.run.workdir / "results"
     scratch = results / "execution"
     rows, ablation, gifs = [], [], []
     for setting, split in EXECUTION_SETTINGS:
-        res = evaluate_split(cfg, split, scratch / setting, scripted=setting == "Syn-Pl")
+        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl")
         gifs += res.gifs
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used)}
@@ -180,12 +168,12 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
             ablation.append({"setting": name, "succ": None, "n_poses": 0, "trials": stage.eval_trials,
                              "missing": f"run with --ablations (trains specialists with {overrides})"})
             continue
-        variant = ablation_config(cfg, overrides)
+        variant = with_overrides(cfg, overrides)
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
-        res = evaluate_split(variant, "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"), gifs=False)
+        res = evaluate_split(variant, _stage_outputs(variant), "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"), gifs=False)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
-    specialists = _stage_outputs(cfg)["specialists"]
+    specialists = outputs["specialists"]
     provenance = {"profile": cfg.profile, "records_source": stage.records_source,
                   "specialists_manifest": str(Path(specialists.folder) / "manifest.json")}
     json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance})

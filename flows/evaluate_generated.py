@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig
+from flows.config import PipelineConfig, with_overrides
 
 GENERATED_SETTINGS = (("Gen-Pl", "Pl"), ("Gen-Com", "Com"), ("Gen-Geo", "Geo"))
 
@@ -33,16 +33,19 @@ GENERATOR_ABLATIONS: dict[str, dict[str, Any]] = {
 }
 
 
-def generator_ablation_rows(cfg: PipelineConfig) -> list[dict[str, Any]]:
+def generator_ablation_rows(cfg: PipelineConfig, ours: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Q1 / PN on the Pl scenes of every :data:`GENERATOR_ABLATIONS` variant; variants that change the model
-    are trained first (the train-generator stage with the overrides: cached units)."""
+    are trained first (the train-generator stage with the overrides: cached units).  ``ours``: the Gen-Pl row
+    already measured for ``cfg`` (reused for "Ours" instead of generating it again)."""
     from flows import train_generator
-    from flows.evaluate_execution import ablation_config
     from flows.pipeline import run_pipeline
 
     rows = []
     for name, overrides in GENERATOR_ABLATIONS.items():
-        variant = ablation_config(cfg, overrides)
+        if not overrides and ours is not None:
+            rows.append({"setting": name, "q1": ours["q1"], "pn_mm": ours["pn_mm"], "n": ours["n"], "overrides": {}})
+            continue
+        variant = with_overrides(cfg, overrides)
         if any(key.startswith("generator.model") for key in overrides):
             run_pipeline(variant, [train_generator], command=f"ablation:{name}")
         pl = generated_rows(variant, settings=(("Gen-Pl", "Pl"),))[0][0]

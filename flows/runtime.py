@@ -258,6 +258,25 @@ def wait_units(futures: Sequence, progress: StageProgress, run_id: str | None) -
     return [m for m in manifests if m is not None], cached
 
 
+def single_unit(stage: str, future, progress: StageProgress, run_id: str) -> StageResult:
+    """Wait for a one-unit stage's unit: the stage's result (executed here or served from cache)."""
+    (manifest,), cached = wait_units([future], progress, run_id)
+    return StageResult(stage, manifest, executed=1 - cached, cached=cached, seconds=0.0, run_id=run_id)
+
+
+def log_loss_history(tracker, result: StageResult, artifact_path: str) -> None:
+    """MLflow for a training stage: its manifest metrics; when trained in this run, the loss of every row of
+    its ``history`` file as a metric with steps and its ``loss_plot`` PNG."""
+    import json
+
+    tracker.log_metrics(result.run_id, result.manifest.metrics)
+    if result.fully_cached:
+        return
+    for row in json.loads(result.manifest.path("history").read_text()):
+        tracker.log_metrics(result.run_id, {"loss": row["loss"]}, step=row["step"])
+    tracker.log_artifact(result.run_id, result.manifest.path("loss_plot"), artifact_path)
+
+
 def planned_shards_and_merge(shard_specs: list, merge_spec_of: Callable[[list[Manifest]], object]) -> list:
     """Unit specs knowable now for a shards-then-merge stage (``multigrasp status``): every shard, plus the
     merge once every shard has a valid manifest (its key depends on them)."""

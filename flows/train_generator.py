@@ -5,7 +5,8 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import StageProgress, StageResult, make_console, make_task_runner, make_tracker, wait_units
+from flows.runtime import (StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
+                           make_tracker, single_unit)
 from tasks.artifacts import Manifest, code_version, upstream_hashes
 from tasks.generator import GENERATOR_CODE_DIRS, train_task
 from tasks.tracking import Tracker
@@ -41,20 +42,12 @@ def train_generator_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict
     progress = StageProgress(console, STAGE, total=1)
     future = train_task.submit(stage_spec(cfg, upstream["synthesize"], run_id, tracker.tracking_uri), upstream["synthesize"],
                                cfg.generator, cfg.objects, cfg.hand, cfg.run.device, cfg.run.torch_threads)
-    (manifest,), cached = wait_units([future], progress, run_id)
-    return StageResult(STAGE, manifest, executed=1 - cached, cached=cached, seconds=0.0, run_id=run_id)
+    return single_unit(STAGE, future, progress, run_id)
 
 
 def log_stage(tracker: Tracker, result: StageResult) -> None:
     """MLflow: dataset size and final loss; the loss curve (per step) and its plot when trained here."""
-    import json
-
-    tracker.log_metrics(result.run_id, result.manifest.metrics)
-    if result.fully_cached:
-        return
-    for row in json.loads(result.manifest.path("history").read_text()):
-        tracker.log_metrics(result.run_id, {"loss": row["loss"]}, step=row["step"])
-    tracker.log_artifact(result.run_id, result.manifest.path("loss_plot"), "generator")
+    log_loss_history(tracker, result, "generator")
 
 
 def runner_flow(cfg: PipelineConfig):

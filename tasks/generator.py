@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Literal
 
 from prefect import task
 from pydantic import Field
@@ -24,12 +23,13 @@ from components.config_base import Section
 from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json
+from tasks.grasp_tables import RecordsSource, grasp_rows
 from tasks.pointnet import plot_history
 from tasks.preflight import cache_dir
 from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
 
 GENERATOR_CODE_DIRS = ("components/generation", "components/hand", "assets/hand", "components/objects",
-                       "assets/objects", "tasks/generator.py")
+                       "assets/objects", "tasks/generator.py", "tasks/grasp_tables.py")
 
 
 class GeneratorStageConfig(Section):
@@ -39,7 +39,7 @@ class GeneratorStageConfig(Section):
     ik: IKConfig = Field(default_factory=IKConfig, description="Keypoints -> (p, R, q).")
     refine: RefineConfig = Field(default_factory=RefineConfig, description="Refinement of generated grasps.")
     splits: list[str] = Field(default_factory=lambda: ["train"], description="Synthesis splits the generator learns from.")
-    records_source: Literal["accepted", "lowest_energy"] = Field(
+    records_source: RecordsSource = Field(
         "accepted", description="accepted: the synthesis stage's accepted grasps. lowest_energy: per scene the "
         "lowest-energy candidates (smoke profile only: its synthesis accepts none; results mean nothing).")
     lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates per scene.")
@@ -48,22 +48,12 @@ class GeneratorStageConfig(Section):
 
 
 def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):
-    """The synthesis rows the generator learns from (``accepted`` set on the chosen rows)."""
-    import pandas as pd
-
-    accepted = pd.read_parquet(synthesis.path("grasps"))
-    if stage.records_source == "accepted":
-        frame = accepted
-    else:
-        both = [f for f in (accepted, pd.read_parquet(synthesis.path("rejected"))) if len(f)]
-        frame = pd.concat(both, ignore_index=True) if both else accepted
-        if len(frame):
-            frame = frame.sort_values(["scene_id", "energy"]).groupby("scene_id", sort=True).head(
-                stage.lowest_energy_per_scene).copy()
-            frame["accepted"] = True
-    if len(frame):
-        frame = frame[frame["split"].isin(stage.splits)
-                      & (frame["object_names"].map(len) <= stage.model.max_objects)]
+    """The synthesis rows the generator learns from (:func:`tasks.grasp_tables.grasp_rows`); with
+    ``records_source='lowest_energy'`` they are marked accepted, since the dataset keeps accepted rows."""
+    frame = grasp_rows(synthesis, stage.records_source, stage.lowest_energy_per_scene, stage.splits,
+                       stage.model.max_objects)
+    if stage.records_source == "lowest_energy" and len(frame):
+        frame = frame.assign(accepted=True)
     return frame
 
 

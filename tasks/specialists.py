@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from prefect import task
@@ -32,11 +32,12 @@ from components.execution.ppo import PPOConfig
 from components.objects import Placement, Scene
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with
+from tasks.grasp_tables import RecordsSource, grasp_rows
 from tasks.preflight import cache_dir
 from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
 
 SPECIALIST_CODE_DIRS = ("components/execution", "components/hand", "assets/hand", "components/objects",
-                        "assets/objects", "tasks/specialists.py")
+                        "assets/objects", "tasks/specialists.py", "tasks/grasp_tables.py")
 
 
 class SpecialistsStageConfig(Section):
@@ -44,7 +45,7 @@ class SpecialistsStageConfig(Section):
 
     ppo: PPOConfig = Field(default_factory=PPOConfig, description="PPO of each specialist.")
     clustering: ClusteringConfig = Field(default_factory=ClusteringConfig, description="How pre-grasps are split into bins.")
-    records_source: Literal["accepted", "lowest_energy"] = Field(
+    records_source: RecordsSource = Field(
         "accepted",
         description="accepted: the synthesis stage's accepted grasps. lowest_energy: per scene the lowest-energy "
         "candidates whatever the filter said -- for the smoke profile only (its budget accepts none), so the "
@@ -85,20 +86,8 @@ def records_from_table(frame) -> list[GraspRecord]:
 
 def select_records(synthesis: Manifest, stage: SpecialistsStageConfig, splits: list[str]) -> list[GraspRecord]:
     """The pre-grasps of ``splits`` per ``records_source`` (module docstring), scene and row order."""
-    import pandas as pd
-
-    if stage.records_source == "accepted":
-        frame = pd.read_parquet(synthesis.path("grasps"))
-    else:
-        both = [pd.read_parquet(synthesis.path(k)) for k in ("grasps", "rejected")]
-        frame = pd.concat([f for f in both if len(f)], ignore_index=True) if any(len(f) for f in both) else both[0]
-        if len(frame):
-            frame = (frame.sort_values(["scene_id", "energy"])
-                     .groupby("scene_id", sort=True).head(stage.lowest_energy_per_scene))
-    if not len(frame):
-        return []
-    frame = frame[frame["split"].isin(splits) & (frame["object_names"].map(len) <= stage.max_objects)]
-    return records_from_table(frame.sort_values(["scene_id", "row"]))
+    frame = grasp_rows(synthesis, stage.records_source, stage.lowest_energy_per_scene, splits, stage.max_objects)
+    return records_from_table(frame) if len(frame) else []
 
 
 # --------------------------------------------------------------------------- one bin

@@ -36,7 +36,7 @@ class LiftEnvConfig(Section):
 
     # ------------------------------------------------------------------ actions (paper table: 18 joint targets + 6-D base wrench)
     max_base_force_n: float = Field(
-        20.0, gt=0.0, description="Base force at action +-1 on an axis (N, world frame); the hand weighs ~4 kg with its forearm.")
+        20.0, gt=0.0, description="Base force at action +-1 on an axis (N, world frame); the hand with its forearm weighs 4.9 kg (48 N).")
     max_base_torque_nm: float = Field(2.0, gt=0.0, description="Base torque at action +-1 on an axis (N m, world frame).")
     joint_delta_rad: float = Field(
         0.075, gt=0.0,

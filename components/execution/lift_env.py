@@ -77,6 +77,7 @@ class LiftEnv(EnvBase):
         self._last_action = np.zeros(N_ACTIONS)
         self._features = np.zeros((1 + self.n_objects, cfg.feature_dim), dtype=np.float32)
         self._t = 0
+        self._forced: Optional[tuple[int, Optional[int]]] = None  # (record, trial seed) of the next reset
         self.last_terms: dict[str, float] = {}
 
     # ------------------------------------------------------------------ records
@@ -99,16 +100,14 @@ class LiftEnv(EnvBase):
                                         self.world.record.scene.names, state.obj_pos, state.obj_rot)
         self._features = self.featurizer.features(clouds)
 
-    def _output(self, state: WorldState, terms: dict) -> dict:
+    def _output(self, state: WorldState, lift: float) -> dict:
         obs = build_observation(self.cfg, state, self._goal, self._last_action, self._features[0], self._features[1:])
-        lift = float((state.obj_pos[:, 2] - self._start_heights).min())
         return {"observation": torch.from_numpy(obs),
                 "lift": torch.tensor([lift], dtype=torch.float32),
                 "success": torch.tensor([lift > self.cfg.eval_success_height_m])}
 
     def _reset(self, tensordict: Optional[TensorDictBase] = None, **kwargs) -> TensorDictBase:
-        forced = getattr(self, "_forced", None)
-        self._forced = None
+        forced, self._forced = self._forced, None
         if forced is None:
             record = self._pick_record()
         else:
@@ -123,7 +122,7 @@ class LiftEnv(EnvBase):
         self._t = 0
         self._update_features(state)
         false = torch.zeros(1, dtype=torch.bool)
-        return TensorDict({**self._output(state, {}), "done": false, "terminated": false.clone(),
+        return TensorDict({**self._output(state, 0.0), "done": false, "terminated": false.clone(),
                            "truncated": false.clone()}, batch_size=self.batch_size)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -137,7 +136,7 @@ class LiftEnv(EnvBase):
         self.last_terms = terms
         terminated = bool((state.obj_pos[:, 2] < self.cfg.fall_height_m).any())
         truncated = self._t >= self.cfg.max_steps
-        return TensorDict({**self._output(state, terms),
+        return TensorDict({**self._output(state, terms["lift"]),
                            "reward": torch.tensor([terms["reward"]], dtype=torch.float32),
                            "done": torch.tensor([terminated or truncated]),
                            "terminated": torch.tensor([terminated]),
@@ -148,7 +147,4 @@ class LiftEnv(EnvBase):
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         self.world.close()
-        try:
-            super().close(raise_if_closed=raise_if_closed)
-        except TypeError:  # older signature
-            super().close()
+        super().close(raise_if_closed=raise_if_closed)

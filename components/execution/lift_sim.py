@@ -18,6 +18,7 @@ base force and torque in the world frame, times ``max_base_force_n`` / ``max_bas
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,12 @@ class WorldState:
     obj_rot: np.ndarray  # (n_obj, 3, 3)
     obj_lin_vel: np.ndarray  # (n_obj, 3)
     obj_ang_vel: np.ndarray  # (n_obj, 3)
+
+    @cached_property
+    def objects_in_palm(self) -> tuple[np.ndarray, np.ndarray]:
+        """Objects in the palm frame, computed once per state (observation and reward both read them):
+        p^palm = R_palm^T (p - p_palm),  R^palm = R_palm^T R.   -> (n_obj, 3), (n_obj, 3, 3)."""
+        return (self.obj_pos - self.palm_pos) @ self.palm_rot, self.palm_rot.T @ self.obj_rot
 
 
 def _matrix(pos, quat) -> np.ndarray:

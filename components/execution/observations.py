@@ -72,12 +72,6 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def object_poses_in_palm(palm_pos: np.ndarray, palm_rot: np.ndarray, obj_pos: np.ndarray,
-                         obj_rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Objects in the palm frame:  p^palm = R_palm^T (p - p_palm),  R^palm = R_palm^T R.   -> (n, 3), (n, 3, 3)."""
-    return (obj_pos - palm_pos) @ palm_rot, palm_rot.T @ obj_rot
-
-
 @dataclass
 class Goal:
     """The pre-grasp the policy is asked to keep: joint angles, palm rotation, object poses in the palm frame."""
@@ -89,7 +83,7 @@ class Goal:
 
     @classmethod
     def from_state(cls, state: WorldState) -> "Goal":
-        pos, rot = object_poses_in_palm(state.palm_pos, state.palm_rot, state.obj_pos, state.obj_rot)
+        pos, rot = state.objects_in_palm
         return cls(q=state.q.copy(), palm_rot=state.palm_rot.copy(), obj_pos_palm=pos, obj_rot_palm=rot)
 
 
@@ -104,7 +98,7 @@ def build_observation(cfg: LiftEnvConfig, state: WorldState, goal: Goal, last_ac
         parts += [goal.q, state.q - goal.q, goal_euler, wrap_angle(euler - goal_euler)]
     parts.append(hand_feature)
     obj_euler = euler_xyz(state.obj_rot)  # (n, 3)
-    pos_palm, rot_palm = object_poses_in_palm(state.palm_pos, state.palm_rot, state.obj_pos, state.obj_rot)
+    pos_palm, rot_palm = state.objects_in_palm
     euler_palm, goal_euler_palm = euler_xyz(rot_palm), euler_xyz(goal.obj_rot_palm)
     for j in range(len(state.obj_pos)):
         parts += [state.obj_pos[j], obj_euler[j], state.obj_lin_vel[j], state.obj_ang_vel[j]]
@@ -121,6 +115,11 @@ def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def lift_height(state: WorldState, start_heights: np.ndarray) -> float:
+    """min_j (z_j - z_j(0)) (m): the lift of the lowest object."""
+    return float((state.obj_pos[:, 2] - start_heights).min())
+
+
 def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_heights: np.ndarray) -> dict[str, float]:
     """The paper's reward (Eq. rl-rewards) and its terms:
 
@@ -129,12 +128,12 @@ def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_height
         r_obj = -sum_j |p_j^palm - p_j^palm,goal|.
 
     Without goal observations ('w/o Goal') the three goal terms are off.  -> dict with 'reward' and terms."""
-    lift = float((state.obj_pos[:, 2] - start_heights).min())
+    lift = lift_height(state, start_heights)
     success = float(lift > cfg.success_height_m)
     terms = {"r_lift": lift, "r_success": success}
     reward = cfg.w_lift * lift + cfg.w_success * success
     if cfg.goal_observations:
-        pos_palm, _ = object_poses_in_palm(state.palm_pos, state.palm_rot, state.obj_pos, state.obj_rot)
+        pos_palm, _ = state.objects_in_palm
         terms["r_rot"] = -rotation_angle(goal.palm_rot, state.palm_rot)
         terms["r_joint"] = -float(np.abs(state.q - goal.q).mean())
         terms["r_object"] = -float(np.linalg.norm(pos_palm - goal.obj_pos_palm, axis=-1).sum())

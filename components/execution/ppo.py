@@ -70,7 +70,13 @@ class PPOConfig(Section):
 # ============================================================================ networks
 class RunningNorm(nn.Module):
     """y = (x - mean) / sqrt(var + eps) with mean / var running over every observation seen by :meth:`update`
-    (parallel-variance merge of batches); identity until the first update."""
+    (parallel-variance merge of batches); identity until the first update.
+
+    Why not torchrl's ``VecNorm`` / ``ObservationNorm`` transforms: those keep the statistics in the env,
+    i.e. in every collector worker (VecNorm shares them through shared memory), and a trained policy
+    would need the env's transform state saved and restored beside it.  As the first layer of the actor
+    and critic the statistics are buffers of the policy: updated once per batch in the learner, shipped to
+    the workers with the weights, and saved in the same checkpoint the evaluation loads."""
 
     def __init__(self, dim: int, eps: float = 1e-6):
         super().__init__()

@@ -29,7 +29,7 @@ from components.config_base import Section
 from components.execution.lift_sim import GRAVITY, GraspRecord, LiftWorld
 from components.objects import Placement, Scene
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import GraspProblem, energy
+from components.synthesis.energy import GraspProblem, penetration_energy
 from components.synthesis.pose import pack, unpack
 
 
@@ -64,11 +64,10 @@ def linear_path(start: torch.Tensor, end: torch.Tensor, n: int) -> torch.Tensor:
 
 
 def path_penetration(problem: GraspProblem, path: torch.Tensor) -> torch.Tensor:
-    """E_pen of every waypoint (T,), differentiable (the synthesis energy's penetration term)."""
-    contacts = torch.arange(problem.objects.n_objects * problem.cfg.contacts_per_object).reshape(
-        1, problem.objects.n_objects, -1).expand(path.shape[0], -1, -1)
-    _, terms = energy(problem, path, contacts)
-    return terms["pen"]
+    """E_pen of every waypoint (T,), differentiable (the synthesis energy's penetration term, joints
+    coupled as the energy sees them)."""
+    p, R, q = unpack(path)
+    return penetration_energy(problem, p, R, problem.effective_joints(q))[0]
 
 
 def smoothness(path: torch.Tensor) -> torch.Tensor:

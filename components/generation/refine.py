@@ -4,7 +4,7 @@
 
 * E_pen: the synthesis energy's penetration (hand points in objects, object points in the hand, self
   penetration, hand below the table, with ``SynthesisConfig``'s default sub-weights), computed with the
-  same functions as :func:`components.synthesis.energy.energy` (:func:`penetration_energy`).
+  same code as :func:`components.synthesis.energy.energy` (:func:`components.synthesis.energy.penetration_energy`).
 * E_contact (:func:`contact_energy`): hand surface points already within tau of an object surface are
   pulled onto it,  E_contact = 1 / (N_o |S|) sum_j sum_{x in S(H), |d(x, O_j)| < tau} |d(x, O_j)|,
   S(H) the hand's contact candidates (``HandModel.contact_candidates``: the palmar patches).  (The paper
@@ -28,18 +28,8 @@ from torch import Tensor
 
 from components.generation.config import RefineConfig
 from components.hand import HandModel
-from components.hand.model import world_from_palm
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import (
-    GraspProblem,
-    hand_points_in_objects,
-    hand_points_object_distances,
-    object_points_hand_distances,
-    object_points_in_hand,
-    posed_in_world,
-    self_penetration_energy,
-    table_penetration,
-)
+from components.synthesis.energy import GraspProblem, penetration_energy
 from components.synthesis.pose import pack, unpack
 from components.synthesis.scene_objects import SceneObjects
 
@@ -54,32 +44,6 @@ def refinement_problem(hand: HandModel, objects: SceneObjects, cfg: RefineConfig
                                 hand_point_spacing_m=cfg.hand_point_spacing_m,
                                 couple_distal_joints=cfg.couple_distal_joints)
     return GraspProblem.build(hand, objects, synthesis)
-
-
-def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
-    """E_pen = w_po sum relu(-d_H(o_k)) + w_ph sum relu(-d_O(h_m)) + w_self E_spen + w_table E_table (m;
-    :mod:`components.synthesis.energy`), and the deepest sampled penetration (detached, m).
-    p (B, 3), R (B, 3, 3), q (B, 22) -> (E_pen (B,), depth (B,))."""
-    cfg, hand, objects = problem.cfg, problem.hand, problem.objects
-    batch = p.shape[0]
-    frames = hand.forward_kinematics(q)  # (B, L, 4, 4) palm frame
-    prims = hand.collision.pose(frames)
-    n_obj, n_pts = problem.object_points.shape[:2]
-    obj_pts = problem.object_points.reshape(1, n_obj * n_pts, 3).expand(batch, -1, -1)  # (B, n_obj P, 3)
-    d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims).reshape(batch, n_obj, n_pts)
-    d_obj = hand_points_object_distances(objects, problem.hand_surface.from_frames(world_from_palm(p, R, frames)))  # (B, M, n_obj)
-    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
-    lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
-    pen = (cfg.w_pen_object_points * object_points_in_hand(d_hand).sum(-1)
-           + cfg.w_pen_hand_points * hand_points_in_objects(d_obj).sum(-1)
-           + cfg.w_pen_self * self_penetration_energy(pairs)
-           + cfg.w_pen_table * table_penetration(lowest, objects.table_height))
-    with torch.no_grad():
-        depth = torch.maximum(torch.relu(-d_hand).flatten(1).amax(-1), torch.relu(-d_obj).flatten(1).amax(-1))
-        depth = torch.maximum(depth, torch.relu(objects.table_height - lowest).amax(-1))
-        if pairs.shape[1]:
-            depth = torch.maximum(depth, torch.relu(-pairs).amax(-1))
-    return pen, depth
 
 
 def contact_energy(signed_distance: Tensor, tau: float) -> Tensor:

@@ -238,7 +238,7 @@ def nearest_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tens
     score_{j k_jf} -- so one object's contacts sit on distinct fingers (fingers may touch several objects).
     Piecewise constant in the pose: the gradient flows through the chosen points, not the choice.
     points, hand_normals (B, K, 3) -> contacts (B, n_obj, C) long."""
-    objects, cfg = problem.objects, problem.cfg
+    cfg = problem.cfg
     finger_of = problem.finger_of
     n_fingers = int(finger_of.max()) + 1
     score = assignment_scores(problem, points, hand_normals)  # (B, n_obj, K)
@@ -377,6 +377,58 @@ def hand_points_object_distances(objects: SceneObjects, points: Tensor) -> Tenso
 
 
 # ============================================================================ the total
+@dataclass
+class Penetration:
+    """The penetration terms of a batch of hand poses (see :func:`penetration`): per-part energies (m) and
+    their weighted total ``pen`` (B,) (differentiable), and the deepest sampled depths (detached, m)."""
+
+    object_points: Tensor  # (B, n_obj)  object surface samples inside the hand
+    hand_points: Tensor  # (B, n_obj)  hand surface samples inside each object
+    self_: Tensor  # (B,)
+    table: Tensor  # (B,)
+    pen: Tensor  # (B,)  w_po * sum + w_ph * sum + w_self * self + w_table * table
+    depth_objects: Tensor  # (B, n_obj)
+    depth_table: Tensor  # (B,)
+    depth_self: Tensor  # (B,)
+
+    @property
+    def depth_max(self) -> Tensor:
+        """Deepest sampled penetration of any kind (B,)."""
+        return torch.maximum(torch.maximum(self.depth_objects.amax(-1), self.depth_table), self.depth_self)
+
+
+def penetration(problem: GraspProblem, p: Tensor, R: Tensor, frames: Tensor, prims: Primitives) -> Penetration:
+    """E_pen = w_po E_pen^obj-pts + w_ph E_pen^hand-pts + w_self E_spen + w_table E_table (module docstring) of
+    poses (p, R) with palm-frame link ``frames`` and collision ``prims`` (from the FK of the pose's joints).
+    Only points found inside are re-evaluated with autograd (:func:`object_points_hand_distances`,
+    :func:`hand_points_object_distances`)."""
+    cfg, hand, objects = problem.cfg, problem.hand, problem.objects
+    batch = p.shape[0]
+    n_obj, n_pts = problem.object_points.shape[:2]
+    obj_pts = problem.object_points.reshape(1, n_obj * n_pts, 3).expand(batch, -1, -1)  # (B, n_obj P, 3)
+    d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims).reshape(batch, n_obj, n_pts)
+    d_obj = hand_points_object_distances(objects, problem.hand_surface.from_frames(world_from_palm(p, R, frames)))
+    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
+    lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
+    object_points, hand_points = object_points_in_hand(d_hand), hand_points_in_objects(d_obj)  # (B, n_obj) x2
+    self_, table = self_penetration_energy(pairs), table_penetration(lowest, objects.table_height)
+    pen = (cfg.w_pen_object_points * object_points.sum(-1) + cfg.w_pen_hand_points * hand_points.sum(-1)
+           + cfg.w_pen_self * self_ + cfg.w_pen_table * table)
+    with torch.no_grad():
+        depth_objects = torch.maximum(torch.relu(-d_hand).amax(-1), torch.relu(-d_obj).amax(1))  # (B, n_obj)
+        depth_table = torch.relu(objects.table_height - lowest).amax(-1)
+        depth_self = torch.relu(-pairs).amax(-1) if pairs.shape[1] else torch.zeros_like(depth_table)
+    return Penetration(object_points, hand_points, self_, table, pen, depth_objects, depth_table, depth_self)
+
+
+def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
+    """E_pen (B,) (differentiable) and the deepest sampled penetration (B,) (detached, m) of hand poses
+    p (B, 3), R (B, 3, 3), q (B, 22) -- :func:`penetration` after the FK (generator refinement, reaching)."""
+    frames = problem.hand.forward_kinematics(q)
+    result = penetration(problem, p, R, frames, problem.hand.collision.pose(frames))
+    return result.pen, result.depth_max
+
+
 def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None,
            w_fc: Optional[float] = None, w_align: Optional[float] = None) -> tuple[Tensor, dict]:
     """E(H, O) of the module docstring for flat poses x (B, 31) (:mod:`components.synthesis.pose`) and
@@ -398,7 +450,6 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     w_align = cfg.w_align if w_align is None else w_align
     p, R, q_param = unpack(x)
     q = problem.effective_joints(q_param)  # (B, 22)
-    batch = x.shape[0]
 
     frames = hand.forward_kinematics(q)  # (B, L, 4, 4) palm frame
     prims = hand.collision.pose(frames)  # palm frame
@@ -424,21 +475,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
     align_per_object = torch.stack(align, dim=-1)
 
-    # penetration (only points found inside are re-evaluated with autograd: object_points_hand_distances,
-    # hand_points_object_distances)
-    n_obj, n_pts = problem.object_points.shape[:2]
-    obj_pts = problem.object_points.reshape(1, n_obj * n_pts, 3).expand(batch, -1, -1)  # (B, n_obj P, 3)
-    d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims)  # (B, n_obj P)
-    pen_object_points = object_points_in_hand(d_hand.reshape(batch, n_obj, n_pts))  # (B, n_obj)
-    hand_pts = problem.hand_surface.from_frames(world_from_palm(p, R, frames))  # (B, M, 3)
-    d_obj = hand_points_object_distances(objects, hand_pts)  # (B, M, n_obj)
-    pen_hand_points = hand_points_in_objects(d_obj)  # (B, n_obj)
-    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
-    pen_self = self_penetration_energy(pairs)
-    lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
-    pen_table = table_penetration(lowest, objects.table_height)
-    pen = (cfg.w_pen_object_points * pen_object_points.sum(-1) + cfg.w_pen_hand_points * pen_hand_points.sum(-1)
-           + cfg.w_pen_self * pen_self + cfg.w_pen_table * pen_table)
+    pen_terms = penetration(problem, p, R, frames, prims)
+    pen = pen_terms.pen
 
     prior = joint_limit_energy(hand, q)
     fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
@@ -448,19 +486,14 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
              + w_align * align_total + cfg.w_contact_excess * excess_total)
 
     with torch.no_grad():
-        depth_objects = torch.maximum(torch.relu(-d_hand.reshape(batch, n_obj, n_pts)).amax(-1),
-                                      torch.relu(-d_obj).amax(1))  # (B, n_obj)
-        depth_table = torch.relu(objects.table_height - lowest).amax(-1)
-        depth_self = torch.relu(-pairs).amax(-1) if pairs.shape[1] else torch.zeros_like(depth_table)
         terms = {
             "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total, "excess": excess_total,
             "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
-            "pen_object_points": pen_object_points, "pen_hand_points": pen_hand_points,
-            "pen_self": pen_self, "pen_table": pen_table,
+            "pen_object_points": pen_terms.object_points, "pen_hand_points": pen_terms.hand_points,
+            "pen_self": pen_terms.self_, "pen_table": pen_terms.table,
             "contact_distance_max": torch.cat(contact_dist, dim=-1).amax(-1),
-            "penetration_depth_objects": depth_objects, "penetration_depth_table": depth_table,
-            "penetration_depth_self": depth_self,
-            "penetration_depth_max": torch.maximum(torch.maximum(depth_objects.amax(-1), depth_table), depth_self),
+            "penetration_depth_objects": pen_terms.depth_objects, "penetration_depth_table": pen_terms.depth_table,
+            "penetration_depth_self": pen_terms.depth_self, "penetration_depth_max": pen_terms.depth_max,
             "contact_distance_per_object": torch.stack(contact_dist, dim=1).mean(-1),
             CANDIDATE_POINTS: candidate_points.detach(), CONTACT_INDICES: contacts,
         }
