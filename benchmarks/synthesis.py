@@ -3,7 +3,7 @@
 Workload: one fixed dual-object scene — cube + cylinder placed by
 :func:`components.objects.sample_scene` with ``numpy`` seed :data:`SEED` — and one call of
 :func:`components.synthesis.synthesize` with :data:`BATCH` = 256 candidates and the ``bench``
-profile's optimiser (its MALA / refinement step counts, times ``steps_scale``; 1 = as in the
+profile's optimiser (its approach / MALA / refinement step counts, times ``steps_scale``; 1 = as in the
 profile).  Reported:
 
 * ``accepted_per_s`` — accepted grasps per second of that call, ``accept_rate``;
@@ -12,7 +12,10 @@ profile).  Reported:
   callback over intervals of :data:`PROGRESS_EVERY` steps (fewer on very short runs), so it
   holds whatever the inside of the optimiser becomes;
 * ``fk_ms`` — median FK of all links at B = 256 over ``repeats`` timed runs after a warm-up;
-* ``seconds`` — the whole call (initialisation, MALA, refinement, filter).
+* ``seconds`` — the whole call (initialisation, MALA, refinement, filter);
+* ``q1`` / ``pn_mm`` / ``div_deg`` — the paper's pre-grasp metrics (``components.metrics``, the
+  ``bench`` profile's metric settings) over the accepted grasps (the first :data:`QUALITY_MAX` of
+  them; ``None`` when none is accepted), so a throughput figure always comes with its quality.
 
 The synthesis itself runs once (it is long); the step and FK figures are medians.
 """
@@ -33,17 +36,21 @@ BATCH = 256
 BENCH_OBJECTS = ("cube", "cylinder")
 SEED = 0
 PROGRESS_EVERY = 10
+#: At most this many accepted grasps are scored with Q1 / PN / Div (Q1 costs ~0.5 s a grasp on one core).
+QUALITY_MAX = 64
 #: Profile whose optimiser settings (step counts, weights, schedule) the benchmark uses.
 PROFILE = "bench"
 
 
 def bench_optimizer(steps_scale: float):
-    """The bench profile's optimiser at B = 256 with its step counts scaled (at least 1 MALA step)."""
+    """The bench profile's optimiser at B = 256 with its step counts (approach, MALA, refinement) scaled
+    (at least 1 MALA step)."""
     from flows.config import load_config
 
     cfg = load_config(PROFILE).synthesis.optimizer
     mala_steps = max(1, round(cfg.mala_steps * steps_scale))
     return cfg.model_copy(update={"batch_size": BATCH, "mala_steps": mala_steps,
+                                  "approach_steps": max(0, round(cfg.approach_steps * steps_scale)),
                                   "refine_steps": max(0, round(cfg.refine_steps * steps_scale)),
                                   "progress_every": max(1, min(PROGRESS_EVERY, mala_steps // 4))})  # >= 3 intervals
 
@@ -51,8 +58,10 @@ def bench_optimizer(steps_scale: float):
 def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "cpu", steps_scale: float = 1.0) -> dict:
     """Run the workload (module docstring); returns the JSON-able result."""
     from components.hand import HandConfig, HandModel
+    from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
     from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
-    from components.synthesis import synthesize
+    from components.synthesis import SceneObjects, synthesize
+    from flows.config import load_config
 
     if threads:
         torch.set_num_threads(threads)
@@ -74,6 +83,15 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
         result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(SEED), progress)
         sync()
         seconds = time.perf_counter() - start
+        quality = {"q1": None, "pn_mm": None, "div_deg": None}
+        index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
+        if len(index):
+            metrics = load_config(PROFILE).synthesis.metrics
+            objects = SceneObjects(library, scene, hand.device, hand.dtype)
+            p, R, q = result.p[index], result.R[index], result.q[index]
+            quality = {"q1": round(float(q1_grasps(hand, objects, p, R, q, metrics)[0].mean()), 4),
+                       "pn_mm": round(float(penetration_depth(hand, objects, p, R, q, metrics).pn_mm.mean()), 3),
+                       "div_deg": round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None}
 
     step_ms = [(t1 - t0) * 1000.0 / (s1 - s0) for (s0, t0), (s1, t1) in zip(ticks, ticks[1:]) if s1 > s0]
     q = hand.sample_joint_angles(BATCH, generator=torch.Generator().manual_seed(SEED)).to(dev)
@@ -83,8 +101,9 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
     return {"accepted_per_s": round(accepted / seconds, 4), "accept_rate": round(result.accept_rate, 4),
             "accepted": accepted, "step_ms": round(statistics.median(step_ms), 3) if step_ms else None,
             "fk_ms": round(fk_ms, 3), "seconds": round(seconds, 2), "threads": torch.get_num_threads(),
-            "device": str(dev), "repeats": repeats, "torch": torch.__version__,
+            "device": str(dev), "repeats": repeats, "torch": torch.__version__, **quality, "quality_n": len(index),
             "workload": {"objects": list(BENCH_OBJECTS), "scene": scene.to_dict(), "scene_seed": SEED,
                          "batch": BATCH, "profile": PROFILE, "steps_scale": steps_scale,
-                         "mala_steps": cfg.mala_steps, "refine_steps": cfg.refine_steps,
+                         "approach_steps": cfg.approach_steps, "mala_steps": cfg.mala_steps,
+                         "refine_steps": cfg.refine_steps,
                          "reasons": result.reason_counts()}}

@@ -38,8 +38,9 @@ DEFAULT_UI_PORT = 5000
 def _config_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("configuration")
     group.add_argument("--profile", default="smoke",
-                       help="profile in configs/: smoke (minutes on a laptop), bench (1–2 h, real numbers), "
-                            "paper (the paper's scale, GPU/cluster). Default: smoke")
+                       help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~1 h: one pair, "
+                            "real data), bench (placeholder budgets, see README), paper (the paper's scale, "
+                            "GPU/cluster). Default: smoke")
     group.add_argument("--config", type=Path, metavar="FILE", help="YAML file merged over the profile")
     group.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                        help="override one config value, YAML-parsed (repeatable), e.g. --set run.seed=3 "
@@ -143,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     bench.add_argument("--device", choices=["cpu", "cuda"], default="cpu", help="torch device")
     bench.add_argument("--steps-scale", type=float, default=1.0,
-                       help="synthesis: multiply the bench profile's MALA / refinement steps (e.g. 0.01 for a "
+                       help="synthesis: multiply the bench profile's approach / MALA / refinement steps (e.g. 0.01 for a "
                             "quick check); default 1")
     return parser
 

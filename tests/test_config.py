@@ -8,9 +8,9 @@ from components.errors import MultigraspError
 from flows.config import available_profiles, load_config, section_digest
 
 
-def test_profiles_smoke_bench_paper_load():
-    assert {"smoke", "bench", "paper"} <= set(available_profiles())
-    for profile in ("smoke", "bench", "paper"):
+def test_profiles_smoke_mini_bench_paper_load():
+    assert {"smoke", "mini", "bench", "paper"} <= set(available_profiles())
+    for profile in ("smoke", "mini", "bench", "paper"):
         cfg = load_config(profile)
         assert cfg.profile == profile
         assert cfg.run.workdir.is_absolute()

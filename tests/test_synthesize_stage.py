@@ -255,7 +255,8 @@ def test_bench_synthesis_writes_its_json(tmp_path):
     assert main(["bench", "synthesis", "--json", str(out), "--steps-scale", "0.01", "--repeats", "2",
                  "--threads", "1"]) == 0
     result = json.loads(out.read_text())
-    assert {"accepted_per_s", "accept_rate", "step_ms", "fk_ms", "threads", "workload"} <= set(result)
+    assert {"accepted_per_s", "accept_rate", "step_ms", "fk_ms", "threads", "workload", "q1", "pn_mm", "div_deg",
+            "quality_n"} <= set(result)
     assert result["workload"]["batch"] == 256 and result["workload"]["objects"] == ["cube", "cylinder"]
     assert result["step_ms"] > 0 and result["fk_ms"] > 0
 

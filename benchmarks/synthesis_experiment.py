@@ -1,0 +1,101 @@
+"""One synthesis experiment on one seeded scene, with any optimiser setting: the tool behind the
+measurements in ``configs/bench.yaml`` and the README's "Synthesis settings" table.
+
+    python -m benchmarks.synthesis_experiment --objects cube,cylinder --seed 0 \\
+        --profile bench --set batch_size=32 --set mala_steps=800 --device cpu --threads 1 --json out.jsonl
+
+The scene is :func:`components.objects.sample_scene` of ``--objects`` with ``numpy`` seed ``--seed``; the
+optimiser is the profile's ``synthesis.optimizer`` with the ``--set KEY=VALUE`` overrides (keys of
+``SynthesisConfig``; values as in ``multigrasp run --set``).  One JSON line is appended to ``--json``: the setting, seconds,
+filter reasons, accept rate, quantiles of the largest contact distance / E_fc / penetration over all
+candidates, and Q1 / PN / Div over (at most :data:`benchmarks.synthesis.QUALITY_MAX` of) the accepted
+grasps.  Candidates are independent, so the rate of one large batch equals that of several small ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9)
+
+
+def _quantiles(values) -> list[float]:
+    return [round(float(v), 4) for v in np.quantile(values.detach().cpu().numpy(), QUANTILES)]
+
+
+def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str = "bench", device: str = "cpu",
+                   threads: int = 0) -> dict:
+    """Synthesise one scene with the profile's optimiser plus the ``KEY=VALUE`` overrides ``sets`` (keys of
+    ``SynthesisConfig``, validated by the pipeline's ``--set`` machinery); returns the JSON-able summary."""
+    import torch
+
+    from benchmarks.synthesis import QUALITY_MAX
+    from components.hand import HandConfig, HandModel
+    from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
+    from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
+    from components.synthesis import SceneObjects, synthesize
+    from flows.config import load_config
+
+    if threads:
+        torch.set_num_threads(threads)
+    config = load_config(profile, sets=[f"synthesis.optimizer.{item}" for item in sets])
+    cfg = config.synthesis.optimizer
+    hand = HandModel(HandConfig(), device=device)
+    with tempfile.TemporaryDirectory() as tmp:
+        library = ObjectLibrary(ObjectsConfig(), cache_dir=Path(tmp))
+        scene = sample_scene(library, objects, np.random.default_rng(seed), ScenesConfig())
+        start = time.perf_counter()
+        result = synthesize(hand, library, scene, cfg, torch.Generator(device=device).manual_seed(seed))
+        seconds = time.perf_counter() - start
+        terms = result.terms
+        summary = {"objects": objects, "seed": seed, "profile": profile, "set": list(sets), "device": device,
+                   "threads": torch.get_num_threads(), "batch": cfg.batch_size, "seconds": round(seconds, 2),
+                   "reasons": result.reason_counts(), "accept_rate": round(result.accept_rate, 4),
+                   "contact_distance_max_mm": _quantiles(terms["contact_distance_max"] * 1000.0),
+                   "fc_max": _quantiles(terms["fc_per_object"].amax(-1)),
+                   "penetration_mm": _quantiles(terms["penetration_depth_max"] * 1000.0),
+                   "quantiles": list(QUANTILES), "q1": None, "pn_mm": None, "div_deg": None}
+        index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
+        if len(index):
+            scene_objects = SceneObjects(library, scene, hand.device, hand.dtype)
+            p, R, q = result.p[index], result.R[index], result.q[index]
+            summary["q1"] = round(float(q1_grasps(hand, scene_objects, p, R, q, config.synthesis.metrics)[0].mean()), 4)
+            summary["pn_mm"] = round(float(penetration_depth(hand, scene_objects, p, R, q,
+                                                             config.synthesis.metrics).pn_mm.mean()), 3)
+            summary["div_deg"] = round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--objects", default="cube,cylinder", help="comma-separated object names (default cube,cylinder)")
+    parser.add_argument("--seed", type=int, default=0, help="scene and optimiser seed")
+    parser.add_argument("--profile", default="bench", help="profile whose synthesis.optimizer is the base setting")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="optimiser override (repeatable)")
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
+    parser.add_argument("--json", type=Path, required=True, metavar="OUT", help="JSON-lines file to append to")
+    args = parser.parse_args(argv)
+    from components.errors import MultigraspError
+
+    try:
+        summary = run_experiment(args.objects.split(","), args.seed, args.set, args.profile, args.device, args.threads)
+    except MultigraspError as exc:  # unknown object or profile, bad --set key or value: one line
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    with args.json.open("a") as f:
+        f.write(json.dumps(summary) + "\n")
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

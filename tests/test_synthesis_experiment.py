@@ -1,0 +1,26 @@
+"""``python -m benchmarks.synthesis_experiment``: one seeded synthesis experiment appended as a JSON line."""
+
+from __future__ import annotations
+
+import json
+
+from benchmarks.synthesis_experiment import main
+
+
+def test_experiment_appends_a_json_line(tmp_path, capsys):
+    out = tmp_path / "runs.jsonl"
+    args = ["--objects", "cube,cylinder", "--seed", "3", "--threads", "1", "--json", str(out),
+            "--set", "batch_size=4", "--set", "approach_steps=2", "--set", "mala_steps=3", "--set", "refine_steps=2"]
+    assert main(args) == 0 and main(args) == 0
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(lines) == 2 and lines[0]["reasons"] == lines[1]["reasons"]  # seeded: the same run twice
+    row = lines[0]
+    assert row["batch"] == 4 and row["objects"] == ["cube", "cylinder"] and sum(row["reasons"].values()) == 4
+    assert len(row["contact_distance_max_mm"]) == len(row["quantiles"])
+    assert {"q1", "pn_mm", "div_deg", "accept_rate", "seconds"} <= set(row)
+
+
+def test_bad_override_is_one_line(tmp_path, capsys):
+    assert main(["--set", "mala_steps=-1", "--json", str(tmp_path / "x.jsonl")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: bad value for 'synthesis.optimizer.mala_steps'") and "\n" not in err
