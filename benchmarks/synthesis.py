@@ -55,12 +55,29 @@ def bench_optimizer(steps_scale: float):
                                   "progress_every": max(1, min(PROGRESS_EVERY, mala_steps // 4))})  # >= 3 intervals
 
 
+def accepted_quality(hand, library, scene, result, metrics) -> dict:
+    """Mean Q1, mean PN (mm) and Div (deg) of the first :data:`QUALITY_MAX` accepted grasps of a
+    :class:`~components.synthesis.SynthesisResult` (``None`` each when none is accepted; Div needs two),
+    and ``quality_n``, how many were scored."""
+    from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
+    from components.synthesis import SceneObjects
+
+    index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
+    if not len(index):
+        return {"q1": None, "pn_mm": None, "div_deg": None, "quality_n": 0}
+    objects = SceneObjects(library, scene, hand.device, hand.dtype)
+    p, R, q = result.p[index], result.R[index], result.q[index]
+    return {"q1": round(float(q1_grasps(hand, objects, p, R, q, metrics)[0].mean()), 4),
+            "pn_mm": round(float(penetration_depth(hand, objects, p, R, q, metrics).pn_mm.mean()), 3),
+            "div_deg": round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None,
+            "quality_n": len(index)}
+
+
 def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "cpu", steps_scale: float = 1.0) -> dict:
     """Run the workload (module docstring); returns the JSON-able result."""
     from components.hand import HandConfig, HandModel
-    from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
     from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
-    from components.synthesis import SceneObjects, synthesize
+    from components.synthesis import synthesize
     from flows.config import load_config
 
     if threads:
@@ -83,15 +100,7 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
         result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(SEED), progress)
         sync()
         seconds = time.perf_counter() - start
-        quality = {"q1": None, "pn_mm": None, "div_deg": None}
-        index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
-        if len(index):
-            metrics = load_config(PROFILE).synthesis.metrics
-            objects = SceneObjects(library, scene, hand.device, hand.dtype)
-            p, R, q = result.p[index], result.R[index], result.q[index]
-            quality = {"q1": round(float(q1_grasps(hand, objects, p, R, q, metrics)[0].mean()), 4),
-                       "pn_mm": round(float(penetration_depth(hand, objects, p, R, q, metrics).pn_mm.mean()), 3),
-                       "div_deg": round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None}
+        quality = accepted_quality(hand, library, scene, result, load_config(PROFILE).synthesis.metrics)
 
     step_ms = [(t1 - t0) * 1000.0 / (s1 - s0) for (s0, t0), (s1, t1) in zip(ticks, ticks[1:]) if s1 > s0]
     q = hand.sample_joint_angles(BATCH, generator=torch.Generator().manual_seed(SEED)).to(dev)
@@ -101,7 +110,7 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
     return {"accepted_per_s": round(accepted / seconds, 4), "accept_rate": round(result.accept_rate, 4),
             "accepted": accepted, "step_ms": round(statistics.median(step_ms), 3) if step_ms else None,
             "fk_ms": round(fk_ms, 3), "seconds": round(seconds, 2), "threads": torch.get_num_threads(),
-            "device": str(dev), "repeats": repeats, "torch": torch.__version__, **quality, "quality_n": len(index),
+            "device": str(dev), "repeats": repeats, "torch": torch.__version__, **quality,
             "workload": {"objects": list(BENCH_OBJECTS), "scene": scene.to_dict(), "scene_seed": SEED,
                          "batch": BATCH, "profile": PROFILE, "steps_scale": steps_scale,
                          "approach_steps": cfg.approach_steps, "mala_steps": cfg.mala_steps,

@@ -36,11 +36,10 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
     ``SynthesisConfig``, validated by the pipeline's ``--set`` machinery); returns the JSON-able summary."""
     import torch
 
-    from benchmarks.synthesis import QUALITY_MAX
+    from benchmarks.synthesis import accepted_quality
     from components.hand import HandConfig, HandModel
-    from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
     from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
-    from components.synthesis import SceneObjects, synthesize
+    from components.synthesis import synthesize
     from flows.config import load_config
 
     if threads:
@@ -61,15 +60,8 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
                    "contact_distance_max_mm": _quantiles(terms["contact_distance_max"] * 1000.0),
                    "fc_max": _quantiles(terms["fc_per_object"].amax(-1)),
                    "penetration_mm": _quantiles(terms["penetration_depth_max"] * 1000.0),
-                   "quantiles": list(QUANTILES), "q1": None, "pn_mm": None, "div_deg": None}
-        index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
-        if len(index):
-            scene_objects = SceneObjects(library, scene, hand.device, hand.dtype)
-            p, R, q = result.p[index], result.R[index], result.q[index]
-            summary["q1"] = round(float(q1_grasps(hand, scene_objects, p, R, q, config.synthesis.metrics)[0].mean()), 4)
-            summary["pn_mm"] = round(float(penetration_depth(hand, scene_objects, p, R, q,
-                                                             config.synthesis.metrics).pn_mm.mean()), 3)
-            summary["div_deg"] = round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None
+                   "quantiles": list(QUANTILES),
+                   **accepted_quality(hand, library, scene, result, config.synthesis.metrics)}
     return summary
 
 
