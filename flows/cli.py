@@ -38,7 +38,7 @@ DEFAULT_UI_PORT = 5000
 def _config_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("configuration")
     group.add_argument("--profile", default="smoke",
-                       help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~1 h: one pair, "
+                       help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~75 min: one pair, "
                             "real data), bench (placeholder budgets, see README), paper (the paper's scale, "
                             "GPU/cluster). Default: smoke")
     group.add_argument("--config", type=Path, metavar="FILE", help="YAML file merged over the profile")
