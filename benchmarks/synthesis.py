@@ -42,12 +42,9 @@ QUALITY_MAX = 64
 PROFILE = "bench"
 
 
-def bench_optimizer(steps_scale: float):
-    """The bench profile's optimiser at B = 256 with its step counts (approach, MALA, refinement) scaled
+def bench_optimizer(cfg, steps_scale: float):
+    """The profile's optimiser ``cfg`` at B = 256 with its step counts (approach, MALA, refinement) scaled
     (at least 1 MALA step)."""
-    from flows.config import load_config
-
-    cfg = load_config(PROFILE).synthesis.optimizer
     mala_steps = max(1, round(cfg.mala_steps * steps_scale))
     return cfg.model_copy(update={"batch_size": BATCH, "mala_steps": mala_steps,
                                   "approach_steps": max(0, round(cfg.approach_steps * steps_scale)),
@@ -85,7 +82,8 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
     dev = torch.device(device)
     sync = (lambda: torch.cuda.synchronize()) if dev.type == "cuda" else (lambda: None)
     hand = HandModel(HandConfig(), device=dev, dtype=torch.float32)
-    cfg = bench_optimizer(steps_scale)
+    profile = load_config(PROFILE).synthesis  # the optimiser and the metric settings, read once
+    cfg = bench_optimizer(profile.optimizer, steps_scale)
     ticks: list[tuple[int, float]] = []
 
     def progress(step: int, total: int, info: dict) -> None:
@@ -100,7 +98,7 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
         result = synthesize(hand, library, scene, cfg, torch.Generator().manual_seed(SEED), progress)
         sync()
         seconds = time.perf_counter() - start
-        quality = accepted_quality(hand, library, scene, result, load_config(PROFILE).synthesis.metrics)
+        quality = accepted_quality(hand, library, scene, result, profile.metrics)
 
     step_ms = [(t1 - t0) * 1000.0 / (s1 - s0) for (s0, t0), (s1, t1) in zip(ticks, ticks[1:]) if s1 > s0]
     q = hand.sample_joint_angles(BATCH, generator=torch.Generator().manual_seed(SEED)).to(dev)

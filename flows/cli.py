@@ -38,9 +38,9 @@ DEFAULT_UI_PORT = 5000
 def _config_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("configuration")
     group.add_argument("--profile", default="smoke",
-                       help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~75 min: one pair, "
-                            "real data), bench (placeholder budgets, see README), paper (the paper's scale, "
-                            "GPU/cluster). Default: smoke")
+                       help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~75 min: one "
+                            "pair, real data), bench (the scaled-down full experiment; stage budgets not yet tuned, "
+                            "see README), paper (the paper's scale, GPU/cluster). Default: smoke")
     group.add_argument("--config", type=Path, metavar="FILE", help="YAML file merged over the profile")
     group.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                        help="override one config value, YAML-parsed (repeatable), e.g. --set run.seed=3 "
