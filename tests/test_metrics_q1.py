@@ -122,3 +122,51 @@ def test_contacts_without_a_defined_normal_are_skipped_not_fatal():
     assert len(surface) == 2
     assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
     assert np.allclose(surface[0], [0.019, 0.0, 0.0])
+
+
+# ----------------------------------------------------------------------------- other Q1 conventions
+
+
+def test_torque_scale_replaces_the_radius_normalisation():
+    cfg = MetricsConfig()
+    by_radius = q1_single_object(RADIUS * AXES, AXES, np.zeros(3), RADIUS, cfg)
+    # lambda = 1 / r is the same wrench set
+    same = q1_single_object(RADIUS * AXES, AXES, np.zeros(3), RADIUS, MetricsConfig(q1_torque_scale_per_m=1.0 / RADIUS))
+    assert same == pytest.approx(by_radius, rel=1e-9)
+    # six axis contacts: only friction twists the sphere, torque rows are lambda r mu-sized, so a smaller
+    # lambda r shrinks Q1 in proportion (it is set by the torque directions): lambda r = 0.25 -> Q1 / 4
+    small = q1_single_object(RADIUS * AXES, AXES, np.zeros(3), RADIUS, MetricsConfig(q1_torque_scale_per_m=0.25 / RADIUS))
+    assert small == pytest.approx(by_radius / 4.0, rel=1e-6)
+
+
+def test_per_link_mode_keeps_the_nearest_touching_sample_of_each_link():
+    from components.metrics.q1 import object_contacts
+
+    cfg = MetricsConfig(q1_contact_mode="per_link", contact_distance_m=0.01)
+    distances = np.array([0.004, 0.001, 0.02, 0.003, 0.009, -0.001])
+    links = np.array([0, 0, 1, 1, 2, 2])
+    points = np.stack([np.full(3, float(k)) for k in range(6)])
+    normals = np.tile([0.0, 0.0, 1.0], (6, 1))
+    surface, normal = object_contacts(distances, points, normals, cfg, links)
+    # link 0: sample 1 (1 mm); link 1: sample 3 (sample 2 is 2 cm away); link 2: sample 5 (inside)
+    expected = points[[1, 3, 5]] - distances[[1, 3, 5], None] * normals[[1, 3, 5]]
+    assert np.allclose(surface, expected)
+    with pytest.raises(ValueError, match="link index"):
+        object_contacts(distances, points, normals, cfg)
+
+
+def test_per_link_q1_of_a_held_sphere_is_positive(hand, library):
+    # the curled fingers and the palm around a sphere: one contact per touching link still makes force closure
+    p = torch.tensor([[0.0, 0.0, 0.3]], dtype=torch.float64)
+    R = torch.eye(3, dtype=torch.float64).unsqueeze(0)
+    q = hand.open_pose().unsqueeze(0)
+    q[0, [1, 2, 5, 6, 9, 10, 14, 15]] = 1.2
+    scene = Scene(objects=(Placement("sphere", (0.0, -0.035, 0.38), (0.0, 0.0, 0.0, 1.0)),))
+    objects = SceneObjects(library, scene, dtype=torch.float64)
+    per_link, _ = q1_grasps(hand, objects, p, R, q, MetricsConfig(q1_contact_mode="per_link", contact_distance_m=0.01))
+    assert float(per_link[0]) > 0.0
+    # the same sphere 20 cm away: no link within 1 cm, Q1 = 0
+    far = SceneObjects(library, Scene(objects=(Placement("sphere", (0.2, -0.035, 0.38), (0.0, 0.0, 0.0, 1.0)),)),
+                       dtype=torch.float64)
+    none, _ = q1_grasps(hand, far, p, R, q, MetricsConfig(q1_contact_mode="per_link", contact_distance_m=0.01))
+    assert float(none[0]) == 0.0

@@ -1,5 +1,7 @@
 """Config section of the grasp metrics (:class:`MetricsConfig`, DESIGN §6)."""
 
+from typing import Literal, Optional
+
 from pydantic import Field
 
 from components.config_base import Section
@@ -23,6 +25,15 @@ class MetricsConfig(Section):
         32, ge=1,
         description="Q1: at most this many contacts per object (farthest-point subset of the samples in contact), which bounds "
         "the 6-D convex hull to max_contacts x edges wrenches; neighbouring samples add nearly identical wrenches.")
+    q1_contact_mode: Literal["dense", "per_link"] = Field(
+        "dense",
+        description="Q1: which hand samples within contact_distance_m are contacts. 'dense' (this project): all of them "
+        "(at most q1_max_contacts, spread by farthest-point sampling). 'per_link': one per hand link, its sample "
+        "nearest the object -- the convention of the DexGraspNet / UniDexGrasp evaluation code ('nms').")
+    q1_torque_scale_per_m: Optional[float] = Field(
+        None, gt=0.0,
+        description="Q1: torques are (x - c) x f divided by the object's radius when None (this project: scale-free); "
+        "a number lambda multiplies them by lambda (1/m) instead (the DexGraspNet / UniDexGrasp evaluation code: 10).")
     q1_rank_tolerance: float = Field(
         1e-9, gt=0.0,
         description="Q1: the wrenches are rank-deficient (Q1 = 0) when their smallest singular value is below this fraction of the largest.")

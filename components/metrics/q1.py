@@ -8,9 +8,12 @@ Definition used here, for one object O with centre of mass c and radius r (``Obj
   x = h - d_O(h) n(h), with n the outward unit normal (SDF gradient).  At most ``q1_max_contacts``
   (farthest-point subset, starting from the closest sample).  The hand's contact candidates are *not*
   used: any part of the hand that touches the object can push it.
+  With ``q1_contact_mode='per_link'`` each hand link contributes at most one contact instead: its sample
+  nearest O, if within ``contact_distance_m`` (the DexGraspNet / UniDexGrasp evaluation convention).
 * **Primitive wrenches**: a friction cone of coefficient mu linearised by E edges (unit normal force),
   f_k = -n + mu (cos(2 pi k / E) t1 + sin(2 pi k / E) t2), and
-  w_k = [f_k ; (x - c) x f_k / r]  (torque normalised by the object's radius).
+  w_k = [f_k ; s (x - c) x f_k]  with s = 1 / r (torque normalised by the object's radius; default) or
+  s = ``q1_torque_scale_per_m`` (1/m) when set.
 * **Q1** = radius of the largest ball centred at the origin inside the convex hull W of all primitive
   wrenches = min over the facets of W of their distance to the origin (scipy / qhull, 6-D).  Q1 = 0 when
   there are no contacts, when the wrenches are rank-deficient (they cannot span the 6-D wrench space,
@@ -47,15 +50,16 @@ def tangent_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def primitive_wrenches(points: np.ndarray, normals: np.ndarray, centre: np.ndarray, radius: float,
-                       mu: float, n_edges: int) -> np.ndarray:
+                       mu: float, n_edges: int, torque_scale: float | None = None) -> np.ndarray:
     """Edge wrenches of linearised friction cones (module docstring):
-    f_k = -n + mu (cos a_k t1 + sin a_k t2),  w_k = [f_k ; (x - c) x f_k / r].
+    f_k = -n + mu (cos a_k t1 + sin a_k t2),  w_k = [f_k ; s (x - c) x f_k],  s = 1 / r or ``torque_scale``.
     points, outward unit normals (C, 3) -> (C * E, 6)."""
     t1, t2 = tangent_basis(normals)
     angles = 2.0 * np.pi * np.arange(n_edges) / n_edges  # (E,)
     forces = (-normals[:, None, :] + mu * (np.cos(angles)[None, :, None] * t1[:, None, :]
                                            + np.sin(angles)[None, :, None] * t2[:, None, :]))  # (C, E, 3)
-    torques = np.cross((points - centre)[:, None, :], forces) / radius  # (C, E, 3)
+    scale = 1.0 / radius if torque_scale is None else torque_scale
+    torques = np.cross((points - centre)[:, None, :], forces) * scale  # (C, E, 3)
     return np.concatenate([forces, torques], axis=-1).reshape(-1, WRENCH_DIM)
 
 
@@ -85,14 +89,25 @@ def q1_single_object(points: np.ndarray, normals: np.ndarray, centre: np.ndarray
     """Q1 of one object from its contact points and outward unit normals (C, 3) (module docstring)."""
     if len(points) == 0:
         return 0.0
-    wrenches = primitive_wrenches(points, normals, centre, radius, cfg.friction_coefficient, cfg.friction_cone_edges)
+    wrenches = primitive_wrenches(points, normals, centre, radius, cfg.friction_coefficient, cfg.friction_cone_edges,
+                                  cfg.q1_torque_scale_per_m)
     return q1_from_wrenches(wrenches, cfg.q1_rank_tolerance)
 
 
+def nearest_per_link(distances: np.ndarray, links: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Of the sample indices ``candidates``, the one of lowest distance on each link (ties: the first).
+    distances (M,), links (M,) -> indices (<= number of links,)."""
+    order = candidates[np.lexsort((distances[candidates], links[candidates]))]  # by link, then distance
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = links[order][1:] != links[order][:-1]
+    return order[first]
+
+
 def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarray,
-                    cfg: MetricsConfig) -> tuple[np.ndarray, np.ndarray]:
+                    cfg: MetricsConfig, links: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The contacts of one grasp on one object: hand samples with d < ``contact_distance_m`` projected onto
-    the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample).
+    the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample), or with
+    ``q1_contact_mode='per_link'`` the nearest such sample of each link (``links``: link index per sample).
     Samples whose SDF normal is undefined (norm <= 0.5) are skipped; the others are renormalised.
     distances (M,), points, normals (M, 3) -> (contact points (C, 3), normals (C, 3))."""
     norms = np.linalg.norm(normals, axis=1)
@@ -100,6 +115,10 @@ def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarr
     touching = np.flatnonzero((distances < cfg.contact_distance_m) & (norms > 0.5))
     if len(touching) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
+    if cfg.q1_contact_mode == "per_link":
+        if links is None:
+            raise ValueError("q1_contact_mode='per_link' needs the link index of every hand sample")
+        touching = nearest_per_link(distances, links, touching)
     normal = normals[touching] / norms[touching, None]
     surface = points[touching] - distances[touching, None] * normal
     if len(touching) > cfg.q1_max_contacts:
@@ -116,6 +135,7 @@ def q1_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: T
     centres = objects.positions.double().cpu().numpy()
     radii = objects.radii.double().cpu().numpy()
     per_object = np.zeros((p.shape[0], objects.n_objects))
+    links = samples.link.cpu().numpy()
     with torch.no_grad():
         for start in range(0, p.shape[0], cfg.batch_chunk):
             rows = slice(start, start + cfg.batch_chunk)
@@ -124,7 +144,7 @@ def q1_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: T
             points, dist, normal = (t.double().cpu().numpy() for t in (points, dist, normal))
             for i in range(points.shape[0]):
                 for j in range(objects.n_objects):
-                    contacts, normals = object_contacts(dist[i, :, j], points[i], normal[i, :, j], cfg)
+                    contacts, normals = object_contacts(dist[i, :, j], points[i], normal[i, :, j], cfg, links)
                     per_object[start + i, j] = q1_single_object(contacts, normals, centres[j], radii[j], cfg)
     per_object_t = torch.as_tensor(per_object)
     return per_object_t.amin(-1), per_object_t
