@@ -227,6 +227,15 @@ def test_zero_accepted_grasps_are_reported_not_a_crash(stage_runs, stage_config,
 
 
 @pytest.mark.slow
+def test_min_q1_above_any_q1_rejects_every_grasp_with_reason_q1(stage_runs, stage_config):
+    workdir, _, _ = stage_runs
+    assert _run(workdir, stage_config, *ACCEPT_ALL, "synthesis.min_q1=100.0") == 0  # a new shard key: recomputed
+    stats = json.loads(_merge_manifest(workdir).path("stats").read_text())
+    assert stats["overall"]["accepted"] == 0
+    assert stats["overall"]["reasons"] == {"q1": SCENES * BATCH}
+
+
+@pytest.mark.slow
 def test_rerun_after_a_crashed_shard_recomputes_only_unfinished_units(stage_runs, stage_config, monkeypatch):
     workdir, _, _ = stage_runs
     variant = [*ACCEPT_ALL, "synthesis.optimizer.mala_steps=4"]  # new shard keys, same scenes
@@ -268,3 +277,16 @@ def test_merge_code_is_outside_the_shard_cache_keys():
 
     assert "tasks/synthesize_merge.py" in MERGE_CODE_DIRS
     assert not any(d.startswith("tasks/synthesize_merge") for d in SYNTHESIS_CODE_DIRS)
+
+
+def test_min_q1_rejects_accepted_rows_that_are_not_above_it():
+    from tasks.synthesize import reject_weak
+
+    arrays = {"accepted": np.array([True, True, True, False]),
+              "reasons": np.array(["accepted", "accepted", "accepted", "fc"])}
+    q1 = np.array([0.2, 0.0, np.nan, np.nan])  # measured for accepted rows only
+    unchanged = reject_weak({k: v.copy() for k, v in arrays.items()}, q1, None)
+    assert unchanged["accepted"].tolist() == arrays["accepted"].tolist()
+    out = reject_weak(arrays, q1, 0.0)  # 0: keep only grasps in force closure under the metric
+    assert out["accepted"].tolist() == [True, False, False, False]
+    assert out["reasons"].tolist() == ["accepted", "q1", "q1", "fc"]
