@@ -22,6 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.grasp_tables import add_source_args, read_accepted, resolve_source, scene_batches
+from components.errors import MultigraspError
+
 #: name -> ``MetricsConfig`` overrides.  "DexGraspNet / UniDexGrasp evaluation code": the ``q1`` section of
 #: their test configs (mu 1, 8 cone edges, contacts within 1 cm, one contact per link ('nms'), torque x 10 / m).
 CONVENTIONS: dict[str, dict] = {
@@ -33,8 +36,6 @@ CONVENTIONS: dict[str, dict] = {
 }
 #: Radius (m) of the sphere of the ideal six-contact grasp.
 IDEAL_SPHERE_RADIUS_M = 0.03
-#: At most this many accepted grasps are scored (Q1 costs up to ~0.5 s a grasp on one core).
-DEFAULT_MAX_GRASPS = 64
 
 
 def ideal_six_contact_q1(metrics) -> float | None:
@@ -48,32 +49,12 @@ def ideal_six_contact_q1(metrics) -> float | None:
     return round(q1_single_object(IDEAL_SPHERE_RADIUS_M * axes, axes, np.zeros(3), IDEAL_SPHERE_RADIUS_M, metrics), 4)
 
 
-def read_accepted(grasps: Path, split: str | None, max_grasps: int):
-    """The first ``max_grasps`` accepted grasps (of ``split`` if given) of a synthesize ``grasps.parquet``."""
-    import pyarrow.parquet as pq
-
-    from components.errors import MultigraspError
-
-    frame = pq.read_table(grasps).to_pandas()
-    if "accepted" in frame:
-        frame = frame[frame["accepted"]]
-    if split is not None:
-        frame = frame[frame["split"] == split]
-    if frame.empty or "p" not in frame:
-        raise MultigraspError(f"no accepted grasps{' of split ' + split if split else ''} in {grasps} — "
-                              "run `multigrasp run --until synthesize` first, or choose another --split")
-    return frame.iloc[:max_grasps]
-
-
 def score(frame, metrics_list, cfg) -> list[np.ndarray]:
     """Multi-object Q1 of every row of ``frame`` under each ``MetricsConfig`` of ``metrics_list`` (hand and objects
     of the pipeline config ``cfg``)."""
-    import torch
-
     from components.hand import HandModel
     from components.metrics import q1_grasps
-    from components.objects import ObjectLibrary, Placement, Scene
-    from components.synthesis import SceneObjects
+    from components.objects import ObjectLibrary
     from components.synthesis.hand_surface import HandSurface
     from tasks.preflight import cache_dir
 
@@ -81,30 +62,19 @@ def score(frame, metrics_list, cfg) -> list[np.ndarray]:
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     out = [np.zeros(len(frame)) for _ in metrics_list]
     surfaces = {}
-    for start, (_, group) in enumerate(frame.groupby("scene_id", sort=False)):
-        first = group.iloc[0]
-        n = len(first["object_names"])
-        pos = np.asarray(first["object_positions"], dtype=float).reshape(n, 3)
-        quat = np.asarray(first["object_quats_xyzw"], dtype=float).reshape(n, 4)
-        scene = Scene(objects=tuple(Placement(name, tuple(pos[i]), tuple(quat[i]))
-                                    for i, name in enumerate(first["object_names"])))
-        objects = SceneObjects(library, scene, hand.device, hand.dtype)
-        p = torch.as_tensor(np.stack(group["p"].to_numpy()), dtype=hand.dtype)
-        R = torch.as_tensor(np.stack(group["R"].to_numpy()), dtype=hand.dtype).reshape(-1, 3, 3)
-        q = torch.as_tensor(np.stack(group["q"].to_numpy()), dtype=hand.dtype)
-        rows = frame.index.get_indexer(group.index)
+    for number, (rows, objects, p, R, q) in enumerate(scene_batches(frame, hand, library), 1):
         for k, metrics in enumerate(metrics_list):
             spacing = metrics.q1_hand_point_spacing_m
             surfaces.setdefault(spacing, HandSurface(hand, spacing))
             out[k][rows] = q1_grasps(hand, objects, p, R, q, metrics, surfaces[spacing])[0].numpy()
-        print(f"q1 conventions: scene {start + 1} ({len(group)} grasps)", file=sys.stderr, flush=True)
+        print(f"q1 conventions: scene {number} ({len(rows)} grasps)", file=sys.stderr, flush=True)
     return out
 
 
 def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
     """Score the grasps under every convention (module docstring), starting from the metric settings of the
     pipeline config ``cfg``; the JSON-able result."""
-    frame = read_accepted(grasps, split, max_grasps).reset_index(drop=True)
+    frame = read_accepted(grasps, split, max_grasps)
     base = cfg.synthesis.metrics
     metrics_list = [type(base).model_validate({**base.model_dump(), **overrides}) for overrides in CONVENTIONS.values()]
     values = score(frame, metrics_list, cfg)
@@ -115,34 +85,12 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from components.errors import MultigraspError
-
     parser = argparse.ArgumentParser(prog="python -m benchmarks.q1_conventions", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--grasps", type=Path, help="a synthesize stage's grasps.parquet (default: found from --profile ...)")
-    parser.add_argument("--profile", default="mini", help="profile whose synthesize stage is scored (default: mini)")
-    parser.add_argument("--config", type=Path, help="YAML config file on top of the profile")
-    parser.add_argument("--set", action="append", default=[], dest="sets", help="KEY=VALUE override, as for multigrasp run")
-    parser.add_argument("--workdir", type=Path, help="workdir of the run (default: the profile's)")
-    parser.add_argument("--split", default="Pl", help="split whose accepted grasps are scored ('all' = every split)")
-    parser.add_argument("--max-grasps", type=int, default=DEFAULT_MAX_GRASPS, help="score at most this many grasps")
+    add_source_args(parser)
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
     try:
-        from flows.config import load_config
-        from flows.pipeline import stage_output
-        overrides = {"workdir": args.workdir} if args.workdir else {}
-        cfg = load_config(args.profile, args.config, args.sets, **overrides)
-        grasps = args.grasps
-        if grasps is None:
-            manifest = stage_output(cfg, "synthesize")
-            if manifest is None:
-                raise MultigraspError("no synthesize stage output for this config — run `multigrasp run --until "
-                                      "synthesize` first (same --profile / --config / --set / --workdir), or pass --grasps")
-            grasps = manifest.path("grasps")
-        elif not grasps.is_file():
-            raise MultigraspError(f"--grasps {grasps} is not a file — pass a synthesize stage's grasps.parquet")
-        if args.max_grasps < 1:
-            raise MultigraspError("--max-grasps must be at least 1")
+        cfg, grasps = resolve_source(args)
         result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
     except MultigraspError as err:
         print(f"error: {err}", file=sys.stderr)

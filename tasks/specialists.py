@@ -29,7 +29,7 @@ from components.execution.clustering import ClusteringConfig
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import GraspRecord
 from components.execution.ppo import PPOConfig
-from components.objects import Placement, Scene
+from components.objects import Scene
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with
 from tasks.grasp_tables import RecordsSource, grasp_rows
@@ -72,11 +72,7 @@ def records_from_table(frame) -> list[GraspRecord]:
     """GraspRecords of the rows of a synthesis table (``tasks.synthesize`` layout)."""
     out = []
     for row in frame.itertuples(index=False):
-        names = list(row.object_names)
-        pos = np.asarray(row.object_positions, float).reshape(-1, 3)
-        quat = np.asarray(row.object_quats_xyzw, float).reshape(-1, 4)
-        scene = Scene(objects=tuple(Placement(n, tuple(map(float, p)), tuple(map(float, q)))
-                                    for n, p, q in zip(names, pos, quat)))
+        scene = Scene.from_arrays(row.object_names, row.object_positions, row.object_quats_xyzw)
         out.append(GraspRecord(scene=scene, p=np.asarray(row.p, float), R=np.asarray(row.R, float).reshape(3, 3),
                                q=np.asarray(row.q, float),
                                meta={"scene_id": row.scene_id, "split": row.split, "row": int(row.row),

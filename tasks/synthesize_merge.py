@@ -152,12 +152,10 @@ def render_grasp_rgb(library, hand, urdf: Path, row: dict[str, Any], cam: Camera
     import pybullet as pb
 
     from components.execution.cameras import add_hand, add_scene_objects, add_table, render_rgb
-    from components.objects import Placement, Scene
+    from components.objects import Scene
 
-    names = row["object_names"]
-    positions = np.asarray(row["object_positions"]).reshape(len(names), 3)
-    quats = np.asarray(row["object_quats_xyzw"]).reshape(len(names), 4)
-    scene = Scene(tuple(Placement(n, tuple(map(float, x)), tuple(map(float, o))) for n, x, o in zip(names, positions, quats)))
+    scene = Scene.from_arrays(row["object_names"], row["object_positions"], row["object_quats_xyzw"])
+    positions = np.array([pl.position for pl in scene.objects])
     client = pb.connect(pb.DIRECT)
     try:
         add_table(client, cam)

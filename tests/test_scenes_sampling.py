@@ -120,6 +120,13 @@ def test_scene_round_trips_through_json(library, cfg):
     assert Scene.from_dict(json.loads(text)) == scene
 
 
+def test_scene_round_trips_through_the_flat_table_columns(library, cfg):
+    scene = sample_scene(library, ["frustum", "bunny"], np.random.default_rng(3), cfg)
+    positions = [v for pl in scene.objects for v in pl.position]  # the synthesis tables' flattened columns
+    quats = [v for pl in scene.objects for v in pl.quat_xyzw]
+    assert Scene.from_arrays(list(scene.names), positions, quats) == scene
+
+
 def test_impossible_scene_is_a_one_line_error_suggesting_a_larger_range(library):
     tight = ScenesConfig(xy_half_range_m=0.005, max_tries=30)
     with pytest.raises(MultigraspError) as excinfo:

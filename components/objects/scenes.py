@@ -74,6 +74,16 @@ class Scene:
         """Inverse of :meth:`to_dict`."""
         return cls(objects=tuple(Placement.from_dict(p) for p in data["objects"]))
 
+    @classmethod
+    def from_arrays(cls, names, positions, quats_xyzw) -> "Scene":
+        """A scene from object names and their positions / xyzw quaternions, each (n, 3) / (n, 4) or flattened
+        (the ``object_positions`` / ``object_quats_xyzw`` columns of the synthesis tables)."""
+        names = [str(n) for n in names]
+        pos = np.asarray(positions, dtype=float).reshape(len(names), 3)
+        quat = np.asarray(quats_xyzw, dtype=float).reshape(len(names), 4)
+        return cls(objects=tuple(Placement(n, tuple(map(float, x)), tuple(map(float, o)))
+                                 for n, x, o in zip(names, pos, quat)))
+
 
 @dataclass(frozen=True)
 class SettleResult:

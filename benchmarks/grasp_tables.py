@@ -1,0 +1,82 @@
+"""Reading a ``synthesize`` stage's grasps for the measurement tools (``benchmarks.q1_conventions``,
+``benchmarks.refine_effect``): the table is found from ``--profile`` / ``--config`` / ``--set`` / ``--workdir``
+like ``multigrasp evaluate``, or given as ``--grasps FILE``; its accepted rows are served one scene at a time
+as posed objects and pose tensors."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from components.errors import MultigraspError
+
+#: At most this many accepted grasps are measured by default (Q1 costs up to ~0.5 s a grasp on one core).
+DEFAULT_MAX_GRASPS = 64
+
+
+def add_source_args(parser: argparse.ArgumentParser) -> None:
+    """The options that say which grasps are read (module docstring)."""
+    parser.add_argument("--grasps", type=Path, help="a synthesize stage's grasps.parquet (default: found from --profile ...)")
+    parser.add_argument("--profile", default="mini", help="profile whose synthesize stage is read (default: mini)")
+    parser.add_argument("--config", type=Path, help="YAML config file on top of the profile")
+    parser.add_argument("--set", action="append", default=[], dest="sets", help="KEY=VALUE override, as for multigrasp run")
+    parser.add_argument("--workdir", type=Path, help="workdir of the run (default: the profile's)")
+    parser.add_argument("--split", default="Pl", help="split whose accepted grasps are read ('all' = every split)")
+    parser.add_argument("--max-grasps", type=int, default=DEFAULT_MAX_GRASPS, help="read at most this many grasps")
+
+
+def resolve_source(args: argparse.Namespace):
+    """(pipeline config, grasps.parquet path) of the parsed :func:`add_source_args` options; one-line
+    :class:`MultigraspError` when the stage output or the file is missing."""
+    from flows.config import load_config
+    from flows.pipeline import stage_output
+
+    if args.max_grasps < 1:
+        raise MultigraspError("--max-grasps must be at least 1")
+    overrides = {"workdir": args.workdir} if args.workdir else {}
+    cfg = load_config(args.profile, args.config, args.sets, **overrides)
+    if args.grasps is None:
+        manifest = stage_output(cfg, "synthesize")
+        if manifest is None:
+            raise MultigraspError("no synthesize stage output for this config — run `multigrasp run --until "
+                                  "synthesize` first (same --profile / --config / --set / --workdir), or pass --grasps")
+        return cfg, manifest.path("grasps")
+    if not args.grasps.is_file():
+        raise MultigraspError(f"--grasps {args.grasps} is not a file — pass a synthesize stage's grasps.parquet")
+    return cfg, args.grasps
+
+
+def read_accepted(grasps: Path, split: str | None, max_grasps: int):
+    """The first ``max_grasps`` accepted grasps (of ``split`` unless None) of a synthesize ``grasps.parquet``,
+    indexed 0 .. n-1."""
+    import pyarrow.parquet as pq
+
+    frame = pq.read_table(grasps).to_pandas()
+    if "accepted" in frame:
+        frame = frame[frame["accepted"]]
+    if split is not None:
+        frame = frame[frame["split"] == split]
+    if frame.empty or "p" not in frame:
+        raise MultigraspError(f"no accepted grasps{' of split ' + split if split else ''} in {grasps} — "
+                              "run `multigrasp run --until synthesize` first, or choose another --split")
+    return frame.iloc[:max_grasps].reset_index(drop=True)
+
+
+def scene_batches(frame, hand, library) -> Iterator[tuple[np.ndarray, object, object, object, object]]:
+    """Per scene of ``frame``: (row positions in ``frame``, ``SceneObjects``, p (B, 3), R (B, 3, 3), q (B, 22))."""
+    import torch
+
+    from components.objects import Scene
+    from components.synthesis import SceneObjects
+
+    for _, group in frame.groupby("scene_id", sort=False):
+        first = group.iloc[0]
+        scene = Scene.from_arrays(first["object_names"], first["object_positions"], first["object_quats_xyzw"])
+        objects = SceneObjects(library, scene, hand.device, hand.dtype)
+        p = torch.as_tensor(np.stack(group["p"].to_numpy()), dtype=hand.dtype)
+        R = torch.as_tensor(np.stack(group["R"].to_numpy()), dtype=hand.dtype).reshape(-1, 3, 3)
+        q = torch.as_tensor(np.stack(group["q"].to_numpy()), dtype=hand.dtype)
+        yield frame.index.get_indexer(group.index), objects, p, R, q
