@@ -6,7 +6,9 @@ as posed objects and pose tensors."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator
+import json
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -80,3 +82,24 @@ def scene_batches(frame, hand, library) -> Iterator[tuple[np.ndarray, object, ob
         R = torch.as_tensor(np.stack(group["R"].to_numpy()), dtype=hand.dtype).reshape(-1, 3, 3)
         q = torch.as_tensor(np.stack(group["q"].to_numpy()), dtype=hand.dtype)
         yield frame.index.get_indexer(group.index), objects, p, R, q
+
+
+def tool_main(argv: list[str] | None, prog: str, description: str, run: Callable[..., dict],
+              report: Callable[[dict], None]) -> int:
+    """The command line of a measurement tool: the source options and ``--json OUT``; ``run(grasps, cfg, split,
+    max_grasps)`` -> JSON-able result, written to OUT and summarised by ``report``.  A bad input is one line on
+    stderr and exit status 2."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_source_args(parser)
+    parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    args = parser.parse_args(argv)
+    try:
+        cfg, grasps = resolve_source(args)
+        result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
+    except MultigraspError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    report(result)
+    return 0

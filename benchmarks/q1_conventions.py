@@ -15,15 +15,12 @@ metric overrides, mean Q1, the fraction of grasps with Q1 > 0 and the ideal valu
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, read_accepted, resolve_source, scene_batches
-from components.errors import MultigraspError
+from benchmarks.grasp_tables import read_accepted, scene_batches, tool_main
 
 #: name -> ``MetricsConfig`` overrides.  "DexGraspNet / UniDexGrasp evaluation code": the ``q1`` section of
 #: their test configs (mu 1, 8 cone edges, contacts within 1 cm, one contact per link ('nms'), torque x 10 / m).
@@ -84,23 +81,15 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
     return {"grasps": str(grasps), "split": split, "n": len(frame), "conventions": rows}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.q1_conventions", description=__doc__.split("\n\n")[0])
-    add_source_args(parser)
-    parser.add_argument("--json", type=Path, required=True, help="write the result here")
-    args = parser.parse_args(argv)
-    try:
-        cfg, grasps = resolve_source(args)
-        result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
-    except MultigraspError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
+def report(result: dict) -> None:
+    """One line per convention on stdout."""
     for row in result["conventions"]:
         print(f"{row['q1_mean']:.4f}  (Q1 > 0: {row['q1_positive']:.0%}, ideal {row['ideal_six_contact_sphere']})  "
               f"{row['convention']}")
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return tool_main(argv, "python -m benchmarks.q1_conventions", __doc__.split("\n\n")[0], run, report)
 
 
 if __name__ == "__main__":

@@ -12,15 +12,12 @@ n, mean Q1, fraction with Q1 > 0 and mean PN (mm) before and after, and the refi
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, read_accepted, resolve_source, scene_batches
-from components.errors import MultigraspError
+from benchmarks.grasp_tables import read_accepted, scene_batches, tool_main
 
 
 def _summary(q1: np.ndarray, pn_mm: np.ndarray) -> dict:
@@ -53,23 +50,15 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
             "after": _summary(values["q1_after"], values["pn_after"]), "refine": refine.model_dump()}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.refine_effect", description=__doc__.split("\n\n")[0])
-    add_source_args(parser)
-    parser.add_argument("--json", type=Path, required=True, help="write the result here")
-    args = parser.parse_args(argv)
-    try:
-        cfg, grasps = resolve_source(args)
-        result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
-    except MultigraspError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
+def report(result: dict) -> None:
+    """Before / after lines on stdout."""
     for tag in ("before", "after"):
         row = result[tag]
         print(f"{tag:6s}  Q1 {row['q1_mean']:.4f} (Q1 > 0: {row['q1_positive']:.0%})  PN {row['pn_mm_mean']:.2f} mm")
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return tool_main(argv, "python -m benchmarks.refine_effect", __doc__.split("\n\n")[0], run, report)
 
 
 if __name__ == "__main__":
