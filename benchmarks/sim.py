@@ -12,7 +12,9 @@ simulate the same motion.  Reported (medians over ``repeats``):
 * ``raw_physics_steps_per_s`` -- bare ``stepSimulation`` of the same world from the same reset
   (:meth:`LiftWorld.step_raw`), measured in the same run;
 * ``overhead_ratio`` = env_steps_per_s * substeps / raw_physics_steps_per_s (1 = the env costs nothing
-  on top of the physics).
+  on top of the physics), the median over repeats of each env run paired with the bare run right after
+  it (``overhead_ratio_runs``): the development machine's speed drifts by up to 2x within minutes, and
+  a ratio of two separate medians mixes fast and slow periods (one run gave 0.89 that way).
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ def _make_env(cache_dir: str):
     scene = sample_scene(library, list(BENCH_OBJECTS), np.random.default_rng(SEED), ScenesConfig())
     p, R, q = preview_hand_pose(hand, scene, CameraConfig(), library)
     urdf = hand.export_urdf(Path(cache_dir) / f"hand-{mp.current_process().pid}")
-    encoder = PointNetEncoder(PointNetConfig(feature_dim=cfg.feature_dim)).eval()
+    encoder = PointNetEncoder(PointNetConfig(feature_dim=cfg.feature_dim)).freeze()  # as load_encoder gives it
     record = GraspRecord(scene=scene, p=p, R=R, q=q.astype(np.float64))
     return LiftEnv(hand, library, urdf, [record], cfg, encoder), cfg
 
@@ -99,9 +101,11 @@ def run_sim_benchmark(repeats: int = 5) -> dict:
                 proc.join()
             two.append(sum(rates))
     env_rate, raw_rate = statistics.median(env_rates), statistics.median(raw_rates)
+    ratios = [e * cfg.substeps / r for e, r in zip(env_rates, raw_rates)]
     return {"env_steps_per_s": round(env_rate, 1), "env_steps_per_s_2workers": round(statistics.median(two), 1),
             "raw_physics_steps_per_s": round(raw_rate, 1), "substeps": cfg.substeps,
-            "overhead_ratio": round(env_rate * cfg.substeps / raw_rate, 3), "repeats": repeats,
+            "overhead_ratio": round(statistics.median(ratios), 3),
+            "overhead_ratio_runs": [round(x, 3) for x in ratios], "repeats": repeats,
             "workload": {"objects": list(BENCH_OBJECTS), "scene_seed": SEED, "steps": STEPS,
                          "physics_hz": cfg.physics_hz, "feature_period": cfg.feature_period,
                          "feature_dim": cfg.feature_dim, "actions": "zero"}}

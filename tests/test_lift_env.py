@@ -116,6 +116,43 @@ def test_reward_terms_vanish_at_the_goal(env, record):
         assert terms[name] == pytest.approx(0.0, abs=1e-6), name
 
 
+def test_observation_blocks_hold_the_state_after_steps(env, record):
+    """The preallocated observation buffer is rewritten every step: each block equals its definition."""
+    from components.execution.observations import wrap_angle
+
+    td = env.reset()
+    push = torch.zeros(24)
+    push[0], push[18] = 0.5, 0.3  # a finger joint and a sideways base force
+    for _ in range(3):
+        td["action"] = push
+        td = env.step(td)["next"]
+    state, goal = env.world.read(), env._goal
+    obs = td["observation"]
+    assert np.allclose(_block(obs, "joint_angles"), state.q, atol=1e-5)
+    assert np.allclose(_block(obs, "joint_residues"), state.q - goal.q, atol=1e-5)
+    assert np.allclose(_block(obs, "base_state"), np.concatenate([state.palm_pos, euler_xyz(state.palm_rot),
+                                                                   state.palm_lin_vel, state.palm_ang_vel]), atol=1e-5)
+    assert np.allclose(_block(obs, "orientation_residue"),
+                       wrap_angle(euler_xyz(state.palm_rot) - euler_xyz(goal.palm_rot)), atol=1e-5)
+    pos_palm, rot_palm = state.objects_in_palm
+    for j in range(2):
+        assert np.allclose(_block(obs, f"object_{j}_state")[:3], state.obj_pos[j], atol=1e-6)
+        assert np.allclose(_block(obs, f"object_{j}_pose_residue")[:3], pos_palm[j] - goal.obj_pos_palm[j], atol=1e-6)
+    assert not np.allclose(_block(obs, "joint_residues"), 0.0)  # the step moved something
+    # the returned observation is a copy: the next step does not change it
+    before = obs.clone()
+    td["action"] = push
+    env.step(td)
+    assert torch.equal(obs, before)
+
+
+def test_quaternion_matrices_match_scipy():
+    from components.execution.lift_sim import quat_matrices
+
+    R = Rotation.random(7, random_state=1)
+    assert np.allclose(quat_matrices(R.as_quat()), R.as_matrix(), atol=1e-9)
+
+
 def test_euler_xyz_matches_scipy_extrinsic_xyz():
     R = Rotation.random(64, random_state=0)
     assert np.allclose(euler_xyz(R.as_matrix()), R.as_euler("xyz"), atol=1e-9)

@@ -57,6 +57,29 @@ def test_encoder_keeps_position():
     assert not torch.allclose(encoder(points), encoder(points + torch.tensor([0.0, 0.0, 0.1])))
 
 
+def test_fused_encoder_matches_the_frozen_encoder():
+    """BatchNorm folded into the 1x1 convolutions (the lift env's inference copy) gives the same features."""
+    torch.manual_seed(0)
+    encoder = PointNetEncoder(PointNetConfig(feature_dim=64, encoder_widths=(16, 32)))
+    for module in encoder.modules():  # non-trivial running statistics and affine parameters
+        if isinstance(module, torch.nn.BatchNorm1d):
+            module.running_mean.uniform_(-1.0, 1.0)
+            module.running_var.uniform_(0.5, 2.0)
+            module.weight.data.uniform_(0.5, 1.5)
+            module.bias.data.uniform_(-0.5, 0.5)
+    with pytest.raises(RuntimeError, match="frozen"):
+        encoder.fused()
+    encoder.freeze()
+    clouds = shape_clouds(count=5, points=96)
+    fused = encoder.fused()
+    with torch.no_grad():
+        expected = encoder(clouds)
+    assert torch.allclose(fused(clouds), expected, atol=1e-5, rtol=1e-5)
+    assert fused(clouds).shape == (5, 64)
+    with pytest.raises(ValueError, match="expects points"):
+        fused(clouds[0])
+
+
 def test_chamfer_analytic():
     cloud = torch.randn(2, 40, 3)
     torch.testing.assert_close(chamfer_distance(cloud, cloud), torch.zeros(2), atol=1e-5, rtol=0)

@@ -19,11 +19,11 @@ class LiftEnvConfig(Section):
     physics_hz: int = Field(240, ge=60, description="PyBullet simulation rate (Hz); 240 is PyBullet's default and stable for the hand's small links.")
     substeps: int = Field(
         6, ge=1,
-        description="Physics steps per environment step: the policy acts at physics_hz / substeps = 40 Hz.  The "
-        "env's own work (observation, features, reward, TorchRL) is ~1.1 ms per step on one core against ~0.66 ms "
-        "per physics step, so 4 substeps (60 Hz) leave ~0.69 of the time to the physics and 6 leave ~0.78 "
-        "(benchmarks/sim.py).  Named 'substeps' and not 'frame_skip': an env attribute called frame_skip makes "
-        "torchrl repeat steps.")
+        description="Physics steps per environment step: the policy acts at physics_hz / substeps = 40 Hz.  Around "
+        "the physics the env's own work (state reads, observation, features every feature_period steps, reward, "
+        "TorchRL) takes ~1 ms per env step between PyBullet steps, against 0.5-0.8 ms per physics step, so 6 substeps "
+        "give overhead_ratio 0.67-0.72 (benchmarks/sim.py, medians of 3 runs; 4 substeps gave 0.50-0.55).  Named "
+        "'substeps' and not 'frame_skip': an env attribute called frame_skip makes torchrl repeat steps.")
     solver_iterations: int = Field(50, ge=1, description="PyBullet constraint solver iterations per step (default 50).")
     gravity_compensation: bool = Field(
         True,
@@ -83,8 +83,9 @@ class LiftEnvConfig(Section):
     feature_period: int = Field(
         4, ge=1,
         description="Recompute the point-cloud features every this many environment steps (1 = every step); "
-        "between updates the last features are observed.  4 (10 Hz): encoding 3 clouds costs about a third of "
-        "a step's physics on one CPU thread (benchmarks/sim.py); features of a held grasp change slowly.")
+        "between updates the last features are observed.  4 (10 Hz): one update (link frames, 3 clouds of 128 points, "
+        "the BatchNorm-folded encoder) costs 0.4 ms warm and ~1 ms between PyBullet steps on one CPU thread, more "
+        "than a physics step (benchmarks/sim.py); features of a held grasp change slowly.")
     cloud_seed: int = Field(0, ge=0, description="Seed of the fixed hand and object cloud samples.")
 
     @model_validator(mode="after")

@@ -23,6 +23,7 @@ concatenated in the order above into one float vector; with 2 objects and goals 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,32 +88,82 @@ class Goal:
         return cls(q=state.q.copy(), palm_rot=state.palm_rot.copy(), obj_pos_palm=pos, obj_rot_palm=rot)
 
 
+class ObservationBuilder:
+    """Fills the observation vector (module docstring) into one preallocated float32 buffer.
+
+    The layout's slices are computed once; the goal blocks, constant over an episode, are written by
+    :meth:`start`; :meth:`build` writes only the blocks that change and converts every rotation of the
+    step to Euler angles in one vectorised call.  Each call returns a fresh copy (the rollout keeps it)."""
+
+    def __init__(self, cfg: LiftEnvConfig, n_objects: int):
+        self.cfg, self.n_objects = cfg, n_objects
+        self.slices: dict[str, slice] = {}
+        start = 0
+        for name, dims in observation_blocks(cfg, n_objects):
+            self.slices[name] = slice(start, start + dims)
+            start += dims
+        self._buffer = np.zeros(start, dtype=np.float32)
+        self._goal: Goal | None = None
+        self._goal_euler = np.zeros(3)
+        self._goal_euler_palm = np.zeros((n_objects, 3))
+
+    def start(self, goal: Goal) -> None:
+        """Write the goal blocks of a new episode."""
+        self._goal = goal
+        if not self.cfg.goal_observations:
+            return
+        b, s = self._buffer, self.slices
+        self._goal_euler = euler_xyz(goal.palm_rot)
+        self._goal_euler_palm = euler_xyz(goal.obj_rot_palm)
+        b[s["joint_goals"]] = goal.q
+        b[s["orientation_goal"]] = self._goal_euler
+        for j in range(self.n_objects):
+            b[s[f"object_{j}_pose_goal"]] = np.concatenate([goal.obj_pos_palm[j], self._goal_euler_palm[j]])
+
+    def build(self, state: WorldState, last_action: np.ndarray, hand_feature: np.ndarray,
+              object_features: np.ndarray) -> np.ndarray:
+        """The observation of ``state`` (after :meth:`start`).  object_features (n_obj, feature_dim).  -> (D,) float32."""
+        if self._goal is None:
+            raise RuntimeError("ObservationBuilder.build called before start(goal)")
+        b, s, n, goal = self._buffer, self.slices, self.n_objects, self._goal
+        pos_palm, rot_palm = state.objects_in_palm
+        euler = euler_xyz(np.concatenate([state.palm_rot[None], state.obj_rot, rot_palm]))  # (1 + 2n, 3)
+        b[s["joint_angles"]] = state.q
+        b[s["joint_velocities"]] = state.dq
+        b[s["joint_forces"]] = state.tau
+        b[s["fingertip_wrenches"]] = state.tip_wrench.reshape(-1)
+        base = b[s["base_state"]]
+        base[0:3], base[3:6], base[6:9], base[9:12] = state.palm_pos, euler[0], state.palm_lin_vel, state.palm_ang_vel
+        b[s["last_actions"]] = last_action
+        if self.cfg.goal_observations:
+            b[s["joint_residues"]] = state.q - goal.q
+            b[s["orientation_residue"]] = wrap_angle(euler[0] - self._goal_euler)
+        b[s["hand_feature"]] = hand_feature
+        for j in range(n):
+            obj = b[s[f"object_{j}_state"]]
+            obj[0:3], obj[3:6], obj[6:9], obj[9:12] = (state.obj_pos[j], euler[1 + j], state.obj_lin_vel[j],
+                                                       state.obj_ang_vel[j])
+            if self.cfg.goal_observations:
+                residue = b[s[f"object_{j}_pose_residue"]]
+                residue[0:3] = pos_palm[j] - goal.obj_pos_palm[j]
+                residue[3:6] = wrap_angle(euler[1 + n + j] - self._goal_euler_palm[j])
+            b[s[f"object_{j}_feature"]] = object_features[j]
+        return b.copy()
+
+
 def build_observation(cfg: LiftEnvConfig, state: WorldState, goal: Goal, last_action: np.ndarray,
                       hand_feature: np.ndarray, object_features: np.ndarray) -> np.ndarray:
-    """The observation vector (module docstring).  object_features (n_obj, feature_dim).  -> (D,) float32."""
-    euler = euler_xyz(state.palm_rot)
-    parts = [state.q, state.dq, state.tau, state.tip_wrench.reshape(-1),
-             state.palm_pos, euler, state.palm_lin_vel, state.palm_ang_vel, last_action]
-    if cfg.goal_observations:
-        goal_euler = euler_xyz(goal.palm_rot)
-        parts += [goal.q, state.q - goal.q, goal_euler, wrap_angle(euler - goal_euler)]
-    parts.append(hand_feature)
-    obj_euler = euler_xyz(state.obj_rot)  # (n, 3)
-    pos_palm, rot_palm = state.objects_in_palm
-    euler_palm, goal_euler_palm = euler_xyz(rot_palm), euler_xyz(goal.obj_rot_palm)
-    for j in range(len(state.obj_pos)):
-        parts += [state.obj_pos[j], obj_euler[j], state.obj_lin_vel[j], state.obj_ang_vel[j]]
-        if cfg.goal_observations:
-            parts += [goal.obj_pos_palm[j], goal_euler_palm[j],
-                      pos_palm[j] - goal.obj_pos_palm[j], wrap_angle(euler_palm[j] - goal_euler_palm[j])]
-        parts.append(object_features[j])
-    return np.concatenate(parts).astype(np.float32)
+    """The observation vector of one state (module docstring): a one-off :class:`ObservationBuilder`.
+    object_features (n_obj, feature_dim).  -> (D,) float32."""
+    builder = ObservationBuilder(cfg, len(state.obj_pos))
+    builder.start(goal)
+    return builder.build(state, last_action, hand_feature, object_features)
 
 
 def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Geodesic angle (rad) between two rotations:  arccos((tr(R_a^T R_b) - 1) / 2)."""
-    cos = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos, -1.0, 1.0)))
+    cos = (float(np.vdot(R_a, R_b)) - 1.0) / 2.0  # tr(R_a^T R_b) = sum_ij (R_a)_ij (R_b)_ij
+    return math.acos(min(1.0, max(-1.0, cos)))
 
 
 def lift_height(state: WorldState, start_heights: np.ndarray) -> float:
@@ -136,7 +187,8 @@ def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_height
         pos_palm, _ = state.objects_in_palm
         terms["r_rot"] = -rotation_angle(goal.palm_rot, state.palm_rot)
         terms["r_joint"] = -float(np.abs(state.q - goal.q).mean())
-        terms["r_object"] = -float(np.linalg.norm(pos_palm - goal.obj_pos_palm, axis=-1).sum())
+        offset = pos_palm - goal.obj_pos_palm
+        terms["r_object"] = -float(np.sqrt(np.einsum("ij,ij->i", offset, offset)).sum())
         reward += cfg.w_rotation * terms["r_rot"] + cfg.w_joint * terms["r_joint"] + cfg.w_object * terms["r_object"]
     terms["reward"] = reward
     terms["lift"] = lift

@@ -38,6 +38,7 @@ from typing import Literal, Optional, Union
 import torch
 from pydantic import Field, PositiveInt, ValidationError
 from torch import Tensor, nn
+from torch.nn.utils.fusion import fuse_conv_bn_weights
 
 from components.config_base import Section
 from components.errors import MultigraspError
@@ -121,6 +122,55 @@ class PointNetEncoder(nn.Module):
 
     def train(self, mode: bool = True) -> "PointNetEncoder":
         return super().train(mode and not self.frozen)
+
+    def fused(self) -> "FusedPointNetEncoder":
+        """A faster inference copy with BatchNorm folded in (:class:`FusedPointNetEncoder`); frozen encoders only,
+        so that the copy cannot go stale."""
+        if not self.frozen:
+            raise RuntimeError("PointNetEncoder.fused() needs a frozen encoder (call freeze() first)")
+        return FusedPointNetEncoder(self)
+
+
+class FusedPointNetEncoder:
+    """Inference copy of a frozen :class:`PointNetEncoder` for the CPU lift env: each BatchNorm folded into the
+    1x1 convolution before it (``torch.nn.utils.fusion.fuse_conv_bn_weights``), the layers run as ``addmm``:
+
+        h_{k+1} = relu(h_k W_k^T + b_k),   W_k = diag(g_k / sqrt(v_k + eps)) C_k,   b_k = (c_k - m_k) g_k / sqrt(v_k + eps) + beta_k.
+
+    Same features as the encoder (to float rounding, tested).  Why: the env encodes 3 clouds x 128 points
+    every ``lift.feature_period`` steps between PyBullet steps; one call costs 0.25 ms against the module's
+    0.39 ms (1 thread, warm; benchmarks/sim.py's workload).  torch rather than numpy: numpy's BLAS ignores
+    ``torch.set_num_threads`` and its spinning threads halve the speed of two collector workers on two cores.
+    The weights are a snapshot, hence frozen encoders only (:meth:`PointNetEncoder.fused`)."""
+
+    def __init__(self, encoder: PointNetEncoder):
+        self.layers: list[tuple[Tensor, Tensor]] = []  # [(W (c_in, c_out), b (c_out,))]
+        modules = list(encoder.mlp)
+        with torch.no_grad():
+            for k, module in enumerate(modules):
+                if not isinstance(module, nn.Conv1d):
+                    continue
+                w = module.weight
+                b = torch.zeros(w.shape[0], dtype=w.dtype, device=w.device) if module.bias is None else module.bias
+                following = modules[k + 1] if k + 1 < len(modules) else None
+                if isinstance(following, nn.BatchNorm1d):
+                    w, b = fuse_conv_bn_weights(w, b, following.running_mean, following.running_var, following.eps,
+                                                following.weight, following.bias)
+                self.layers.append((w.detach()[:, :, 0].T.contiguous(), b.detach().clone()))
+        self.input_scale = encoder.input_scale
+        self.feature_dim = encoder.feature_dim
+
+    @torch.inference_mode()
+    def __call__(self, points: Tensor) -> Tensor:
+        """points (B, N, 3) in the palm frame (m)  ->  features (B, feature_dim); the
+        :data:`components.execution.clouds.Encoder` interface."""
+        if points.dim() != 3 or points.shape[-1] != 3 or points.shape[1] == 0:
+            raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {tuple(points.shape)}")
+        batch, n = points.shape[:2]
+        h = points.reshape(batch * n, 3) / self.input_scale
+        for w, b in self.layers:
+            h = torch.addmm(b, h, w).relu_()
+        return h.reshape(batch, n, -1).amax(dim=1)
 
 
 class PointDecoder(nn.Module):
