@@ -87,6 +87,23 @@ def test_denoiser_output_matches_the_representation_and_masked_objects_do_not_ma
     assert not torch.allclose(eps[0], model(x, t, ObjectInputs(clouds2, mask))[0], atol=1e-5)
 
 
+def test_cached_cross_attention_keys_values_give_the_same_noise_prediction():
+    """The sampler's cache of the object tokens' keys / values (computed once, repeated per grasp) changes
+    nothing: same eps as nn.MultiheadAttention on the tokens, with a masked-out object slot too."""
+    cfg = GeneratorConfig(max_objects=3, **SMALL)
+    torch.manual_seed(0)
+    model = GraspDenoiser.for_representation(cfg).eval()
+    objects = ObjectInputs(0.03 * torch.randn(2, 3, 64, 3), torch.tensor([[True, True, False], [True, False, True]]))
+    context = model.encode(objects)
+    cached = model.cache_keys_values(context)
+    assert cached.keys_values is not None and len(cached.keys_values) == cfg.blocks
+    x, t = torch.randn(6, 93), torch.tensor([0, 5, 50, 99, 3, 7])
+    with torch.no_grad():
+        plain = model(x, t, context.repeat_interleave(3))
+        fast = model(x, t, cached.repeat_interleave(3))
+    assert torch.allclose(plain, fast, atol=1e-5)
+
+
 def test_object_slot_embedding_distinguishes_swapped_objects_only_when_enabled():
     torch.manual_seed(0)
     clouds = 0.03 * torch.randn(1, 2, 64, 3)

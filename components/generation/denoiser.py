@@ -49,14 +49,18 @@ class ObjectInputs:
 @dataclass
 class ObjectContext:
     """Encoded condition: tokens (B, T_obj, model_dim) and the attention padding mask (B, T_obj) bool
-    (True = ignore), T_obj = n_obj (M + 1)."""
+    (True = ignore), T_obj = n_obj (M + 1).  ``keys_values``: optional per-block cross-attention keys and
+    values of the tokens, (B, heads, T_obj, head_dim) each (:meth:`GraspDenoiser.cache_keys_values`)."""
 
     tokens: Tensor
     padding: Tensor
+    keys_values: Optional[list[tuple[Tensor, Tensor]]] = None
 
     def repeat_interleave(self, repeats: int) -> "ObjectContext":
         """Each scene's context ``repeats`` times in a row: (B, ...) -> (B repeats, ...) (several grasps per scene)."""
-        return ObjectContext(self.tokens.repeat_interleave(repeats, 0), self.padding.repeat_interleave(repeats, 0))
+        kv = None if self.keys_values is None else [(k.repeat_interleave(repeats, 0), v.repeat_interleave(repeats, 0))
+                                                    for k, v in self.keys_values]
+        return ObjectContext(self.tokens.repeat_interleave(repeats, 0), self.padding.repeat_interleave(repeats, 0), kv)
 
 
 class DenoiserBlock(nn.Module):
@@ -71,14 +75,37 @@ class DenoiserBlock(nn.Module):
         self.mlp = nn.Sequential(nn.Linear(dim, mlp_ratio * dim), nn.GELU(), nn.Dropout(dropout),
                                  nn.Linear(mlp_ratio * dim, dim))
 
-    def forward(self, h: Tensor, time: Tensor, context: ObjectContext) -> Tensor:
-        """h (B, K, dim), time (B, dim) -> (B, K, dim)."""
+    def keys_values(self, tokens: Tensor) -> tuple[Tensor, Tensor]:
+        """The cross-attention's keys and values of object tokens (B, T, dim), split into heads:
+        k = tokens W_k^T + b_k, v = tokens W_v^T + b_v (``cross_attn``'s own in-projection).  -> 2 x (B, heads, T, dim / heads)."""
+        attn, dim = self.cross_attn, tokens.shape[-1]
+        weight, bias = attn.in_proj_weight, attn.in_proj_bias
+        k = nn.functional.linear(tokens, weight[dim:2 * dim], bias[dim:2 * dim])
+        v = nn.functional.linear(tokens, weight[2 * dim:], bias[2 * dim:])
+        split = lambda x: x.unflatten(-1, (attn.num_heads, dim // attn.num_heads)).transpose(1, 2)  # noqa: E731
+        return split(k), split(v)
+
+    def cached_cross_attention(self, x: Tensor, keys: Tensor, values: Tensor, padding: Tensor) -> Tensor:
+        """``cross_attn(x, tokens, tokens, key_padding_mask=padding)`` from pre-computed keys and values
+        (eval mode: no dropout).  x (B, K, dim) -> (B, K, dim)."""
+        attn, dim = self.cross_attn, x.shape[-1]
+        q = nn.functional.linear(x, attn.in_proj_weight[:dim], attn.in_proj_bias[:dim])
+        q = q.unflatten(-1, (attn.num_heads, dim // attn.num_heads)).transpose(1, 2)  # (B, heads, K, head_dim)
+        out = nn.functional.scaled_dot_product_attention(q, keys, values, attn_mask=~padding[:, None, None, :])
+        return attn.out_proj(out.transpose(1, 2).flatten(2))
+
+    def forward(self, h: Tensor, time: Tensor, context: ObjectContext, index: int = 0) -> Tensor:
+        """h (B, K, dim), time (B, dim) -> (B, K, dim).  ``index``: this block's entry of ``context.keys_values``."""
         h = h + self.time(time).unsqueeze(1)
         x = self.norm_self(h)
         h = h + self.self_attn(x, x, x, need_weights=False)[0]
         x = self.norm_cross(h)
-        h = h + self.cross_attn(x, context.tokens, context.tokens, key_padding_mask=context.padding,
-                                need_weights=False)[0]
+        if context.keys_values is not None and not self.training:
+            keys, values = context.keys_values[index]
+            h = h + self.cached_cross_attention(x, keys, values, context.padding)
+        else:
+            h = h + self.cross_attn(x, context.tokens, context.tokens, key_padding_mask=context.padding,
+                                    need_weights=False)[0]
         return h + self.mlp(self.norm_mlp(h))
 
 
@@ -127,6 +154,14 @@ class GraspDenoiser(nn.Module):
         padding = (~mask.bool()).unsqueeze(-1).expand(-1, -1, tokens.shape[2])  # (B, n_obj, M+1)
         return ObjectContext(tokens.reshape(batch, -1, tokens.shape[-1]), padding.reshape(batch, -1))
 
+    def cache_keys_values(self, context: ObjectContext) -> ObjectContext:
+        """The context with every block's cross-attention keys and values computed once: the sampler calls
+        the denoiser T = 100 times on the same objects, and projecting the object tokens at every call cost
+        ~a fifth of a sampling step (B = 256, CPU).  Same outputs (tested)."""
+        with torch.no_grad():
+            kv = [block.keys_values(context.tokens) for block in self.blocks]
+        return ObjectContext(context.tokens, context.padding, kv)
+
     def forward(self, x_t: Tensor, t: Tensor, cond: Union[ObjectInputs, ObjectContext]) -> Tensor:
         """Predicted noise (B, D).  ``cond`` is encoded here when it is raw :class:`ObjectInputs` (training);
         the sampler passes a pre-encoded :class:`ObjectContext`."""
@@ -134,6 +169,6 @@ class GraspDenoiser(nn.Module):
         batch = x_t.shape[0]
         h = self.token_in(x_t.reshape(batch, self.n_tokens, self.token_dim)) + self.token_embedding  # (B, K, dim)
         time = self.time_mlp(timestep_embedding(t, self.cfg.time_embedding_dim).to(x_t.dtype))  # (B, dim)
-        for block in self.blocks:
-            h = block(h, time, context)
+        for index, block in enumerate(self.blocks):
+            h = block(h, time, context, index)
         return self.token_out(self.norm_out(h)).reshape(batch, -1)

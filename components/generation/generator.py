@@ -42,7 +42,7 @@ class GraspGenerator(nn.Module):
     def sample(self, objects: ObjectInputs, per_scene: int = 1, generator: Optional[torch.Generator] = None) -> Tensor:
         """``per_scene`` raw representations for each of the B scenes (scene-major).   -> (B per_scene, D)."""
         self.eval()
-        context = self.denoiser.encode(objects).repeat_interleave(per_scene)
+        context = self.denoiser.cache_keys_values(self.denoiser.encode(objects)).repeat_interleave(per_scene)
         batch = objects.clouds.shape[0] * per_scene
         z = sample(self.denoiser, self.schedule, (batch, self.denoiser.dim), context, generator,
                    clip=self.cfg.clip_sample, device=objects.clouds.device, dtype=objects.clouds.dtype)

@@ -64,8 +64,9 @@ def refinement_energy(problem: GraspProblem, x: Tensor, tau: float, cfg: RefineC
     hand = problem.hand
     p, R, q = unpack(x)
     q = problem.effective_joints(q)
-    pen, depth = penetration_energy(problem, p, R, q)
-    contact = contact_energy(problem.objects.sdf(hand.contact_candidates(p, R, q)), tau)
+    frames = hand.forward_kinematics(q)  # one FK for both terms
+    pen, depth = penetration_energy(problem, p, R, q, frames)
+    contact = contact_energy(problem.objects.sdf(hand.contact_candidates(p, R, q, frames)), tau)
     prior = hand.joint_limit_violation(q)
     total = cfg.w_pen * pen + cfg.w_contact * contact + cfg.w_prior * prior
     return total, {"pen": pen.detach(), "contact": contact.detach(), "prior": prior.detach(), "depth": depth}

@@ -122,9 +122,13 @@ class HandModel:
         palm = transform_points(frames, local)  # (B, K, 3)
         return palm @ R.transpose(1, 2) + p.unsqueeze(1)
 
-    def contact_candidates(self, p: Tensor, R: Tensor, q: Tensor) -> Tensor:
-        """All contact candidate points in the world; region of each: ``contact_region_of``.   -> (B, K, 3)."""
-        return self._points_on_links(self._candidate_link, self._candidate_local, p, R, q)
+    def contact_candidates(self, p: Tensor, R: Tensor, q: Tensor, frames: Optional[Tensor] = None) -> Tensor:
+        """All contact candidate points in the world; region of each: ``contact_region_of``.   -> (B, K, 3).
+        ``frames``: this q's ``forward_kinematics`` when the caller already has it (saves one FK)."""
+        if frames is None:
+            return self._points_on_links(self._candidate_link, self._candidate_local, p, R, q)
+        palm = transform_points(frames[:, self._candidate_link], self._candidate_local)
+        return palm @ R.transpose(1, 2) + p.unsqueeze(1)
 
     def contact_candidates_and_normals(self, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
         """Contact candidates (B, K, 3) and their outward unit surface normals (B, K, 3) in the world."""

@@ -421,10 +421,12 @@ def penetration(problem: GraspProblem, p: Tensor, R: Tensor, frames: Tensor, pri
     return Penetration(object_points, hand_points, self_, table, pen, depth_objects, depth_table, depth_self)
 
 
-def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
+def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor,
+                       frames: Optional[Tensor] = None) -> tuple[Tensor, Tensor]:
     """E_pen (B,) (differentiable) and the deepest sampled penetration (B,) (detached, m) of hand poses
-    p (B, 3), R (B, 3, 3), q (B, 22) -- :func:`penetration` after the FK (generator refinement, reaching)."""
-    frames = problem.hand.forward_kinematics(q)
+    p (B, 3), R (B, 3, 3), q (B, 22) -- :func:`penetration` after the FK (generator refinement, reaching);
+    ``frames`` = ``hand.forward_kinematics(q)`` when the caller has it already."""
+    frames = problem.hand.forward_kinematics(q) if frames is None else frames
     result = penetration(problem, p, R, frames, problem.hand.collision.pose(frames))
     return result.pen, result.depth_max
 
