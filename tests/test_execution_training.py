@@ -94,7 +94,8 @@ def test_ppo_trains_checkpoints_resumes_and_serves_a_finished_run(factory, tmp_p
     ckpt = tmp_path / "ppo.pt"
     first = train_ppo(factory, PPOConfig(iterations=1, **TINY_PPO), ckpt)
     assert first.resumed_from == 0 and [r["iteration"] for r in first.history] == [1]
-    assert {"loss_objective", "loss_critic", "reward"} <= set(first.history[0])
+    assert {"loss_objective", "loss_critic", "reward", "collect_s", "update_s", "frames_per_s"} <= set(first.history[0])
+    assert all(row["collect_s"] >= 0 and row["update_s"] > 0 and row["frames_per_s"] > 0 for row in first.history)
     longer = train_ppo(factory, PPOConfig(iterations=2, **TINY_PPO), ckpt)
     assert longer.resumed_from == 1 and [r["iteration"] for r in longer.history] == [1, 2]
     state = load_checkpoint(ckpt)

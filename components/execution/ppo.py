@@ -6,6 +6,9 @@ in process) or ``MultiSyncCollector`` (several processes), checkpoints with resu
     result = train_ppo(env_factory, PPOConfig(...), checkpoint_path, progress=print)
     result.actor, result.history                       # [{'iteration', 'frames', 'reward', 'success', ...}]
 
+Each history row also has ``collect_s`` (waiting for the batch), ``update_s`` (the PPO epochs and the weight
+push to the workers) and ``frames_per_s`` (the iteration's frames over both), so a run says where its time went.
+
 Resume: a checkpoint (actor, critic, normaliser, optimiser, iteration, frames, history) is written
 atomically every ``checkpoint_every`` iterations and at the end; ``train_ppo`` on an existing
 checkpoint continues from its iteration (a finished one returns at once).  A corrupt checkpoint is a
@@ -194,15 +197,22 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
                           batch_size=cfg.minibatch_size)
     start = time.perf_counter()
     iteration = start_iteration
+    collect_start = start
     try:
         for data in collector:
+            collected = time.perf_counter()
             iteration += 1
             frames += data.numel()
             if cfg.normalize_observations:
                 norm.update(data["observation"])
             losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg)
             collector.update_policy_weights_()
-            row = {"iteration": iteration, "frames": frames, **losses, **episode_stats(data)}
+            updated = time.perf_counter()
+            # where an iteration's wall time goes: waiting for the collector's batch, then the learner
+            timing = {"collect_s": round(collected - collect_start, 3), "update_s": round(updated - collected, 3),
+                      "frames_per_s": round(data.numel() / max(updated - collect_start, 1e-9), 1)}
+            collect_start = updated
+            row = {"iteration": iteration, "frames": frames, **losses, **episode_stats(data), **timing}
             history.append(row)
             if progress is not None:
                 elapsed = time.perf_counter() - start
