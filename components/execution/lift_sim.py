@@ -205,18 +205,23 @@ class LiftWorld:
         positions = np.array([base, *[s[0] for s in states]])
         return self._masses @ positions / self.mass, base
 
+    def _weight_compensation(self) -> tuple[list, list, tuple]:
+        """(force, torque, point) that cancel the hand's weight now: the weight acts at the hand's COM, so
+        lifting it at the base COM needs the torque (com - base_com) x (0, 0, W) = W (dy, -dx, 0).  Zero
+        without ``gravity_compensation``."""
+        weight = self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0
+        com, base_com = self._hand_com()
+        dx, dy = float(com[0] - base_com[0]), float(com[1] - base_com[1])
+        return [0.0, 0.0, weight], [weight * dy, -weight * dx, 0.0], base_com
+
     def step(self, action: np.ndarray) -> WorldState:
         """One environment step: set the action, then ``substeps`` physics steps with the base wrench
         (and the weight compensation, at the hand's centre of mass) applied at each."""
         force, torque = self.set_action(action)
         c = self.client
-        weight = self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0
-        com, base_com = self._hand_com()
-        # the weight acts at the hand's COM: lifting it there = lifting at the base COM plus the torque
-        # (com - base_com) x (0, 0, weight) = weight * (dy, -dx, 0)
-        dx, dy = com[0] - base_com[0], com[1] - base_com[1]
-        total_force = [float(force[0]), float(force[1]), float(force[2]) + weight]
-        total_torque = [float(torque[0]) + weight * dy, float(torque[1]) - weight * dx, float(torque[2])]
+        lift, lift_torque, base_com = self._weight_compensation()
+        total_force = [float(force[0]) + lift[0], float(force[1]) + lift[1], float(force[2]) + lift[2]]
+        total_torque = [float(torque[k]) + lift_torque[k] for k in range(3)]
         for _ in range(self.cfg.substeps):
             pb.applyExternalForce(self.body, -1, total_force, base_com, pb.WORLD_FRAME, physicsClientId=c)
             pb.applyExternalTorque(self.body, -1, total_torque, pb.WORLD_FRAME, physicsClientId=c)
@@ -227,9 +232,7 @@ class LiftWorld:
         """n bare physics steps -- no action, no state reads, only the constant weight compensation force (the
         same physical input as a zero action): the benchmark's reference cost of the physics alone."""
         c = self.client
-        lift = [0.0, 0.0, self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0]
-        com, base_com = self._hand_com()
-        torque = np.cross(com - np.asarray(base_com), lift).tolist()
+        lift, torque, base_com = self._weight_compensation()
         for _ in range(n):
             pb.applyExternalForce(self.body, -1, lift, base_com, pb.WORLD_FRAME, physicsClientId=c)
             pb.applyExternalTorque(self.body, -1, torque, pb.WORLD_FRAME, physicsClientId=c)

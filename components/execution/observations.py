@@ -1,5 +1,5 @@
 """The lift policy's observation, block by block as the paper's Table "Observation and action definitions"
-(state-based policy).  :func:`observation_blocks` is the layout; :func:`build_observation` fills it.
+(state-based policy).  :func:`observation_blocks` is the layout; :class:`ObservationBuilder` fills it.
 
 ==========================================  =============  =========================================
 block                                        dims           definition
@@ -149,15 +149,6 @@ class ObservationBuilder:
                 residue[3:6] = wrap_angle(euler[1 + n + j] - self._goal_euler_palm[j])
             b[s[f"object_{j}_feature"]] = object_features[j]
         return b.copy()
-
-
-def build_observation(cfg: LiftEnvConfig, state: WorldState, goal: Goal, last_action: np.ndarray,
-                      hand_feature: np.ndarray, object_features: np.ndarray) -> np.ndarray:
-    """The observation vector of one state (module docstring): a one-off :class:`ObservationBuilder`.
-    object_features (n_obj, feature_dim).  -> (D,) float32."""
-    builder = ObservationBuilder(cfg, len(state.obj_pos))
-    builder.start(goal)
-    return builder.build(state, last_action, hand_feature, object_features)
 
 
 def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:

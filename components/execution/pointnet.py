@@ -90,6 +90,11 @@ class PointNetConfig(Section):
 # ---------------------------------------------------------------------------------------------- modules
 
 
+def _check_points(points: Tensor) -> None:
+    if points.dim() != 3 or points.shape[-1] != 3 or points.shape[1] == 0:
+        raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {tuple(points.shape)}")
+
+
 class PointNetEncoder(nn.Module):
     """Shared per-point MLP then max-pool over points:  (B, N, 3) -> (B, feature_dim), any N >= 1."""
 
@@ -109,8 +114,7 @@ class PointNetEncoder(nn.Module):
 
     def forward(self, points: Tensor) -> Tensor:
         """points (B, N, 3) in the palm frame (m)  ->  features (B, feature_dim)."""
-        if points.dim() != 3 or points.shape[-1] != 3 or points.shape[1] == 0:
-            raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {tuple(points.shape)}")
+        _check_points(points)
         per_point = self.mlp((points / self.input_scale).transpose(1, 2))  # (B, feature_dim, N)
         return per_point.amax(dim=2)
 
@@ -164,8 +168,7 @@ class FusedPointNetEncoder:
     def __call__(self, points: Tensor) -> Tensor:
         """points (B, N, 3) in the palm frame (m)  ->  features (B, feature_dim); the
         :data:`components.execution.clouds.Encoder` interface."""
-        if points.dim() != 3 or points.shape[-1] != 3 or points.shape[1] == 0:
-            raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {tuple(points.shape)}")
+        _check_points(points)
         batch, n = points.shape[:2]
         h = points.reshape(batch * n, 3) / self.input_scale
         for w, b in self.layers:
