@@ -2,11 +2,14 @@
 
 Workload: the cube + cylinder scene of :func:`components.objects.sample_scene` with ``numpy`` seed
 :data:`SEED`; a generator of the default :class:`GeneratorConfig` (freshly initialised: sampling costs the
-same whatever the weights), 256 grasps = the paper's timing batch.  Reported (medians over ``repeats``):
+same whatever the weights), 256 grasps = the paper's timing batch.  The sampler, IK and refinement settings
+are the ``generator`` stage's (default: the paper's 100-step ancestral DDPM, 200 refinement steps), changed
+with ``--set sampler.method=ddim --set refine.steps=50``-style overrides of :class:`GeneratorStageConfig`.
+Reported (medians over ``repeats``):
 
-* ``sample_s`` -- the 100-step ancestral DDPM sampling of 256 keypoint sets (objects encoded once);
-* ``ik_s`` -- keypoints -> (p, R, q) for the 256 (default :class:`IKConfig`);
-* ``refine_s`` -- the refinement of the 256 (default :class:`RefineConfig`);
+* ``sample_s`` -- sampling 256 keypoint sets (objects encoded once);
+* ``ik_s`` -- keypoints -> (p, R, q) for the 256;
+* ``refine_s`` -- the refinement of the 256;
 * ``time_256_s`` = sample_s + ik_s + refine_s (the paper: 12.28 s on an RTX 3090 Ti), ``threads``.
 """
 
@@ -24,10 +27,14 @@ BENCH_OBJECTS = ("cube", "cylinder")
 BATCH = 256
 
 
-def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "cpu", batch: int = BATCH) -> dict:
+def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "cpu", batch: int = BATCH,
+                             sets: tuple[str, ...] = ()) -> dict:
+    """``sets``: ``KEY=VALUE`` overrides of the generator stage (``sampler.steps=25``, ``refine.steps=50``, ...)."""
     import torch
 
-    from components.generation import GeneratorConfig, IKConfig, RefineConfig, posed_clouds, refine_grasps
+    from flows.config import load_config
+
+    from components.generation import GeneratorConfig, posed_clouds, refine_grasps
     from components.generation.denoiser import ObjectInputs
     from components.generation.representation import from_representation
     from components.generation.training import build_generator
@@ -37,7 +44,8 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
 
     if threads:
         torch.set_num_threads(threads)
-    cfg, ik, refine = GeneratorConfig(), IKConfig(), RefineConfig()
+    stage = load_config("bench", None, [f"generator.{item}" for item in sets]).generator
+    cfg, sampler, ik, refine = GeneratorConfig(), stage.sampler, stage.ik, stage.refine
     hand = HandModel(HandConfig(), device=device)
     model = build_generator(cfg).to(device).eval()
     with tempfile.TemporaryDirectory() as tmp:
@@ -54,7 +62,7 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
             gen = torch.Generator(device=device).manual_seed(SEED + r)
             t0 = time.perf_counter()
             with torch.no_grad():
-                x = model.sample(inputs, batch, gen)
+                x = model.sample(inputs, batch, gen, sampler)
             t1 = time.perf_counter()
             p, R, q = from_representation(hand, x, cfg.representation, ik)
             t2 = time.perf_counter()
@@ -67,6 +75,9 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
     total = round(sum(med.values()), 3)
     return {"time_256_s": total if batch == BATCH else None, "time_s": total, **med, "threads": torch.get_num_threads(), "device": device,
             "repeats": repeats, "workload": {"objects": list(BENCH_OBJECTS), "scene_seed": SEED, "batch": batch,
-                                             "diffusion_steps": cfg.diffusion_steps, "ik_steps": ik.steps,
+                                             "diffusion_steps": cfg.diffusion_steps, "sampler": sampler.method,
+                                             "denoiser_calls": (min(sampler.steps, cfg.diffusion_steps)
+                                                                if sampler.method == "ddim" else cfg.diffusion_steps),
+                                             "overrides": list(sets), "ik_steps": ik.steps,
                                              "refine_steps": refine.steps, "weights": "untrained (same cost)"},
             "paper_time_256_s": 12.28}

@@ -146,6 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--steps-scale", type=float, default=1.0,
                        help="synthesis: multiply the bench profile's approach / MALA / refinement steps (e.g. 0.01 for a "
                             "quick check); default 1")
+    bench.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                       help="generation: override a value of the generator stage (repeatable), e.g. --set "
+                            "sampler.method=ddim --set sampler.steps=25 --set refine.steps=50")
     return parser
 
 
@@ -217,6 +220,9 @@ def _cmd_ui(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
+    if args.sets and args.name != "generation":
+        raise MultigraspError(f"--set applies to `bench generation` only (got it with `bench {args.name}`) — drop it")
+
     if args.name == "synthesis":
         from benchmarks.synthesis import run_synthesis_benchmark
 
@@ -227,7 +233,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     elif args.name == "generation":
         from benchmarks.generation import run_generation_benchmark
 
-        result = run_generation_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
+        result = run_generation_benchmark(repeats=args.repeats, threads=args.threads, device=args.device,
+                                          sets=tuple(args.sets))
     elif args.name == "sim":
         from benchmarks.sim import run_sim_benchmark
 

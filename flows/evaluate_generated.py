@@ -93,7 +93,8 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS) -> tuple[li
             start = time.perf_counter()
             with torch.no_grad():
                 p, R, q = generate_grasps(model, hand, torch.as_tensor(clouds, dtype=torch.float32)[None].expand(n, -1, -1, -1),
-                                          yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen)
+                                          yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen,
+                                          sampler=stage.sampler)
             objects = SceneObjects(library, scene, hand.device, hand.dtype)
             refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine)
             seconds += time.perf_counter() - start

@@ -83,7 +83,8 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
     mask_t = torch.as_tensor(mask).unsqueeze(0).expand(n, -1)
     t0 = time.perf_counter()
     with torch.no_grad():
-        p, R, q = generate_grasps(model, hand, clouds_t, yaws, stage.ik, mask_t, per_scene=1, generator=gen)
+        p, R, q = generate_grasps(model, hand, clouds_t, yaws, stage.ik, mask_t, per_scene=1, generator=gen,
+                                  sampler=stage.sampler)
     t1 = time.perf_counter()
     refined = refine_grasps(hand, SceneObjects(library, scene, hand.device, hand.dtype), p.detach(), R.detach(),
                             q.detach(), stage.refine)

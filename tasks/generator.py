@@ -20,7 +20,7 @@ from prefect import task
 from pydantic import Field
 
 from components.config_base import Section
-from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
+from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json
 from tasks.grasp_tables import RecordsSource, grasp_rows
@@ -36,6 +36,9 @@ class GeneratorStageConfig(Section):
     """The generator: model and training, which grasps it learns from, IK and refinement of its samples."""
 
     model: GeneratorConfig = Field(default_factory=GeneratorConfig, description="Network, diffusion and training.")
+    sampler: SamplerConfig = Field(
+        default_factory=SamplerConfig, description="Reverse process at generation time (ddpm: the paper's 100 "
+        "ancestral steps; ddim: strided, fewer denoiser calls).")
     ik: IKConfig = Field(default_factory=IKConfig, description="Keypoints -> (p, R, q).")
     refine: RefineConfig = Field(default_factory=RefineConfig, description="Refinement of generated grasps.")
     splits: list[str] = Field(default_factory=lambda: ["train"], description="Synthesis splits the generator learns from.")

@@ -77,6 +77,10 @@ def test_bench_generation_reports_its_timings():
     assert result["time_256_s"] is None and result["workload"]["batch"] == 2  # only a 256 batch is the paper's figure
     assert result["time_s"] == pytest.approx(result["sample_s"] + result["ik_s"] + result["refine_s"], abs=2e-3)
     assert result["threads"] == 1
+    assert result["workload"]["sampler"] == "ddpm" and result["workload"]["denoiser_calls"] == 100
+    fast = run_generation_benchmark(repeats=1, threads=1, batch=2,
+                                    sets=("sampler.method=ddim", "sampler.steps=10", "refine.steps=5"))
+    assert fast["workload"]["denoiser_calls"] == 10 and fast["workload"]["refine_steps"] == 5
 
 
 def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):

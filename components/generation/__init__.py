@@ -13,12 +13,15 @@ ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints)
 """
 
 from components.generation.canonical import AlignedFrame, palm_direction, rotation_z, yaw_of
-from components.generation.config import GeneratorConfig, IKConfig, RefineConfig
+from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
 from components.generation.dataset import GraspDataset, object_cloud, posed_clouds, scene_pivot
 from components.generation.denoiser import GraspDenoiser, ObjectContext, ObjectInputs, timestep_embedding
 from components.generation.diffusion import (
     NoiseSchedule,
     Standardizer,
+    ddim_sample,
+    ddim_step,
+    ddim_timesteps,
     diffusion_loss,
     linear_beta_schedule,
     p_sample,
@@ -49,7 +52,8 @@ from components.generation.training import TrainResult, load_generator, train_ge
 
 __all__ = [
     "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
-    "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SetAbstraction",
+    "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SamplerConfig",
+    "SetAbstraction", "ddim_sample", "ddim_step", "ddim_timesteps",
     "Standardizer", "ball_query", "contact_energy", "diffusion_loss", "farthest_point_sampling",
     "from_representation", "generate_grasps", "group", "kabsch", "keypoint_error", "linear_beta_schedule",
     "p_sample", "palm_direction", "palm_keypoint_indices", "penetration_energy", "q_sample", "refine_grasps",

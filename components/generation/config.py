@@ -3,6 +3,7 @@ and §"Multi-object Grasp Refinement").
 
 * :class:`GeneratorConfig` -- the conditional DDPM: PointNet++ object encoder, cross-attention denoiser,
   noise schedule (100 steps, linear beta 1e-4 -> 0.01, as SceneDiffuser / the paper) and its training.
+* :class:`SamplerConfig` -- how a trained model is sampled: the paper's 100-step ancestral DDPM, or strided DDIM.
 * :class:`IKConfig` -- keypoints -> (p, R, q): palm frame by Kabsch, then the 18 actuated joints by Adam.
 * :class:`RefineConfig` -- the refinement energy E_g = E_pen + lambda_c E_contact with tau 2 mm -> 1 mm.
 
@@ -97,6 +98,21 @@ class GeneratorConfig(Section):
         if self.beta_end < self.beta_start:
             raise ValueError("beta_end must be >= beta_start")
         return self
+
+
+class SamplerConfig(Section):
+    """Reverse process used at generation time (not part of the trained model: changing it retrains nothing)."""
+
+    method: Literal["ddpm", "ddim"] = Field(
+        "ddpm", description="ddpm: ancestral sampling over all T steps (the paper). ddim: deterministic strided "
+        "sampling (Song et al. 2021) over ``steps`` of the T timesteps, with the same trained model.")
+    steps: int = Field(
+        25, ge=1, description="method=ddim: denoiser calls per sample (<= the model's diffusion_steps; every "
+        "floor(T / steps)-th timestep; a larger value is read as T).  Each call costs the same, so sampling time "
+        "scales with it.")
+    eta: float = Field(
+        0.0, ge=0.0, le=1.0, description="method=ddim: noise of each step, 0 = deterministic; 1 with steps = T is "
+        "the ancestral DDPM.")
 
 
 class IKConfig(Section):

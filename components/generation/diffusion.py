@@ -11,6 +11,11 @@ with diffusers' conventions: timesteps t = 0 .. T-1, beta_t linear from ``beta_s
                x_{t-1} = mu_{t-1} + sigma_t z,  z ~ N(0, I) (z = 0 at t = 0),
                sigma_t^2 = beta~_t = (1 - abar_{t-1}) / (1 - abar_t) beta_t  or  beta_t          (:func:`p_sample`)
     sampling:  x_{T-1} ~ N(0, I), then p_sample for t = T-1 .. 0                               (:func:`sample`)
+    strided:   DDIM (Song et al. 2021) on S of the T timesteps, t_i = i floor(T / S) ("leading" spacing), i = S-1 .. 0:
+               x_{t_{i-1}} = sqrt(abar_{t_{i-1}}) x0^ + sqrt(1 - abar_{t_{i-1}} - s_i^2) eps_theta + s_i z,
+               s_i = eta sqrt((1 - abar_{t_{i-1}}) / (1 - abar_{t_i})) sqrt(1 - abar_{t_i} / abar_{t_{i-1}}),
+               abar_{t_{-1}} = 1 (the last step returns x0^); eta = 0 is deterministic  (:func:`ddim_sample`).
+               The same trained eps-model serves both samplers.
 
 The model is any callable ``model(x_t (B, D), t (B,) long, cond) -> eps (B, D)``; ``cond`` is passed
 through untouched (the denoiser's encoded objects, or None).  Data are standardised per dimension by
@@ -129,6 +134,53 @@ def sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], con
     x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
     for t in reversed(range(schedule.steps)):
         x = p_sample(model, schedule, x, t, cond, generator, clip)
+    return x
+
+
+def ddim_timesteps(train_steps: int, sampling_steps: int) -> list[int]:
+    """The S timesteps of the strided sampler, t_i = i floor(T / S), i = 0 .. S-1 (diffusers' "leading"
+    spacing; S = T gives every step).   -> ascending list of S ints."""
+    if not 1 <= sampling_steps <= train_steps:
+        raise ValueError(f"sampling_steps must be in 1 .. {train_steps} (the schedule's T), got {sampling_steps}")
+    stride = train_steps // sampling_steps
+    return [i * stride for i in range(sampling_steps)]
+
+
+@torch.no_grad()
+def ddim_step(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, t_prev: int, cond: Any, eta: float = 0.0,
+              generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
+    """One DDIM step x_t -> x_{t_prev} (module docstring; t_prev = -1: abar = 1, returns x0^).   (B, D) -> (B, D)."""
+    tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
+    eps = model(x_t, tt, cond)
+    x0 = predict_x0(schedule, x_t, tt, eps)
+    if clip > 0.0:
+        x0 = x0.clamp(-clip, clip)
+        abar_t = schedule.at("alphas_cumprod", tt, x_t)
+        eps = (x_t - abar_t.sqrt() * x0) / (1.0 - abar_t).sqrt()  # the noise consistent with the clamped x0^
+    if t_prev < 0:
+        return x0
+    abar_t = float(schedule.alphas_cumprod[t])
+    abar_prev = float(schedule.alphas_cumprod[t_prev])
+    sigma = eta * ((1.0 - abar_prev) / (1.0 - abar_t)) ** 0.5 * (1.0 - abar_t / abar_prev) ** 0.5
+    out = abar_prev ** 0.5 * x0 + max(1.0 - abar_prev - sigma ** 2, 0.0) ** 0.5 * eps
+    if sigma > 0.0:
+        gen_device = generator.device if generator is not None else x_t.device
+        out = out + sigma * torch.randn(x_t.shape, generator=generator, device=gen_device, dtype=x_t.dtype).to(x_t.device)
+    return out
+
+
+@torch.no_grad()
+def ddim_sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], cond: Any, steps: int,
+                eta: float = 0.0, generator: Optional[torch.Generator] = None, clip: float = 0.0, device=None,
+                dtype=torch.float32) -> Tensor:
+    """Strided sampling: x_{t_{S-1}} ~ N(0, I) of ``shape`` (B, D), then :func:`ddim_step` down the
+    :func:`ddim_timesteps`.  -> x_0 (B, D)."""
+    device = torch.device(device) if device is not None else schedule.betas.device
+    gen_device = generator.device if generator is not None else device
+    x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
+    timesteps = ddim_timesteps(schedule.steps, steps)
+    for i in reversed(range(len(timesteps))):
+        x = ddim_step(model, schedule, x, timesteps[i], timesteps[i - 1] if i > 0 else -1, cond, eta, generator, clip)
     return x
 
 
