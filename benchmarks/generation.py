@@ -3,8 +3,9 @@
 Workload: the cube + cylinder scene of :func:`components.objects.sample_scene` with ``numpy`` seed
 :data:`SEED`; a generator of the default :class:`GeneratorConfig` (freshly initialised: sampling costs the
 same whatever the weights), 256 grasps = the paper's timing batch.  The sampler, IK and refinement settings
-are the ``generator`` stage's (default: the paper's 100-step ancestral DDPM, 200 refinement steps), changed
-with ``--set sampler.method=ddim --set refine.steps=50``-style overrides of :class:`GeneratorStageConfig`.
+are the ``generator`` stage's of ``profile`` (bench: strided DDIM with 25 denoiser calls and 50 refinement
+steps; paper: the paper's 100-step ancestral DDPM and 200 refinement steps), changed with
+``--set sampler.steps=10``-style overrides of :class:`GeneratorStageConfig`.
 Reported (medians over ``repeats``):
 
 * ``sample_s`` -- sampling 256 keypoint sets (objects encoded once);
@@ -28,8 +29,9 @@ BATCH = 256
 
 
 def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "cpu", batch: int = BATCH,
-                             sets: tuple[str, ...] = ()) -> dict:
-    """``sets``: ``KEY=VALUE`` overrides of the generator stage (``sampler.steps=25``, ``refine.steps=50``, ...)."""
+                             sets: tuple[str, ...] = (), profile: str = "bench") -> dict:
+    """``profile``: whose ``generator`` settings; ``sets``: ``KEY=VALUE`` overrides of that section
+    (``sampler.steps=25``, ``refine.steps=50``, ...)."""
     import torch
 
     from flows.config import load_config
@@ -44,7 +46,7 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
 
     if threads:
         torch.set_num_threads(threads)
-    stage = load_config("bench", None, [f"generator.{item}" for item in sets]).generator
+    stage = load_config(profile, None, [f"generator.{item}" for item in sets]).generator
     cfg, sampler, ik, refine = GeneratorConfig(), stage.sampler, stage.ik, stage.refine
     hand = HandModel(HandConfig(), device=device)
     model = build_generator(cfg).to(device).eval()
@@ -78,6 +80,7 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
                                              "diffusion_steps": cfg.diffusion_steps, "sampler": sampler.method,
                                              "denoiser_calls": (min(sampler.steps, cfg.diffusion_steps)
                                                                 if sampler.method == "ddim" else cfg.diffusion_steps),
-                                             "overrides": list(sets), "ik_steps": ik.steps,
+                                             "profile": profile, "overrides": list(sets),
+                                             "ik_steps": ik.steps, "refine_lr": refine.lr,
                                              "refine_steps": refine.steps, "weights": "untrained (same cost)"},
             "paper_time_256_s": 12.28}

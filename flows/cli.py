@@ -146,9 +146,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--steps-scale", type=float, default=1.0,
                        help="synthesis: multiply the bench profile's approach / MALA / refinement steps (e.g. 0.01 for a "
                             "quick check); default 1")
+    bench.add_argument("--profile", default=None,
+                       help="generation: the profile whose generator settings are timed (default bench: DDIM 25 + "
+                            "50 refinement steps; paper: the paper's 100 DDPM + 200 refinement steps)")
     bench.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                        help="generation: override a value of the generator stage (repeatable), e.g. --set "
-                            "sampler.method=ddim --set sampler.steps=25 --set refine.steps=50")
+                            "sampler.steps=10 --set refine.steps=30")
     return parser
 
 
@@ -220,8 +223,9 @@ def _cmd_ui(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    if args.sets and args.name != "generation":
-        raise MultigraspError(f"--set applies to `bench generation` only (got it with `bench {args.name}`) — drop it")
+    if (args.sets or args.profile) and args.name != "generation":
+        raise MultigraspError(f"--set / --profile apply to `bench generation` only (got them with `bench {args.name}`) "
+                              "— drop them")
 
     if args.name == "synthesis":
         from benchmarks.synthesis import run_synthesis_benchmark
@@ -234,7 +238,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from benchmarks.generation import run_generation_benchmark
 
         result = run_generation_benchmark(repeats=args.repeats, threads=args.threads, device=args.device,
-                                          sets=tuple(args.sets))
+                                          sets=tuple(args.sets), profile=args.profile or "bench")
     elif args.name == "sim":
         from benchmarks.sim import run_sim_benchmark
 

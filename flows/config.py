@@ -121,7 +121,8 @@ def _known_keys(model: type[Section], prefix: str = "") -> list[str]:
     return keys
 
 
-def _parse_set(item: str) -> tuple[list[str], Any]:
+def parse_set(item: str) -> tuple[list[str], Any]:
+    """``KEY=VALUE`` of ``--set`` -> (dotted key split, YAML-parsed value); a bad item is a MultigraspError."""
     if "=" not in item:
         raise MultigraspError(f"--set needs KEY=VALUE (e.g. --set run.seed=3), got '{item}'")
     key, raw = item.split("=", 1)
@@ -182,7 +183,7 @@ def load_config(
     if config_file:
         tree = _merge(tree, _read_yaml(Path(config_file)))
     for item in sets or []:
-        path_parts, value = _parse_set(item)
+        path_parts, value = parse_set(item)
         tree = _assign(tree, path_parts, value)
     run_updates = {k: v for k, v in run_overrides.items() if v is not None}
     if run_updates:

@@ -3,7 +3,7 @@ evaluation scenes (paper Table "pre-grasp quality", Gen rows).
 
 For each setting ``Gen-Pl`` / ``Gen-Com`` / ``Gen-Geo``, the first ``generator.eval_scenes`` scenes of that
 split (the ``scenes`` stage's, the same ones synthesis saw) each get ``generator.eval_grasps_per_scene``
-grasps -- random palm directions, DDPM sampling, IK, refinement -- whose Q1, PN and Div are measured as
+grasps -- random palm directions, sampling (``generator.sampler``), IK, refinement -- whose Q1, PN and Div are measured as
 for the synthetic rows (``synthesis.metrics``).  ``time_s`` is the wall time of sampling + IK + refinement
 of the setting's grasps and ``time_256_s`` that time scaled to 256 grasps.  Every generated grasp counts
 (there is no filter), so ``accept_rate`` is 1.
@@ -53,7 +53,11 @@ def generator_ablation_rows(cfg: PipelineConfig, ours: dict[str, Any] | None = N
     return rows
 
 
-def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS) -> tuple[list[dict[str, Any]], dict[str, str]]:
+def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS,
+                   checkpoint: Path | None = None) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """The Gen rows of ``settings`` (module docstring) and where the model came from: the config's
+    ``train-generator`` stage, or ``checkpoint`` (a ``generator.pt``) when given.  Each row also has
+    ``pn_before_refine_mm``, the mean deepest penetration of the raw samples (after IK, before refinement)."""
     import pandas as pd
     import torch
 
@@ -67,14 +71,15 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS) -> tuple[li
     from tasks.preflight import cache_dir
     from tasks.synthesize import read_scene_records
 
-    generator, scenes = stage_output(cfg, "train-generator"), stage_output(cfg, "scenes")
-    if generator is None or scenes is None:
+    generator = stage_output(cfg, "train-generator") if checkpoint is None else None
+    scenes = stage_output(cfg, "scenes")
+    if (checkpoint is None and generator is None) or scenes is None:
         raise MultigraspError("evaluate pregrasp --source generated needs a trained generator for this config — run "
                               "`multigrasp run --until train-generator` first (same --profile / --config / --set)")
     stage, metrics = cfg.generator, cfg.synthesis.metrics
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    model = load_generator(generator.path("generator"))
+    model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
     records = read_scene_records(scenes)
     rows = []
     for name, split in settings:
@@ -101,11 +106,15 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS) -> tuple[li
             q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
             pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
             for i in range(n):
-                frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy()})
-        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q"])
+                frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy(),
+                                   "pn_before_mm": float(refined.depth_before[i]) * 1000.0})
+        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q", "pn_before_mm"])
         row = setting_row(Setting(name, split), frame, len(frame))
+        row["pn_before_refine_mm"] = round(float(frame["pn_before_mm"].mean()), 3) if len(frame) else None
         row["time_s"] = round(seconds, 3)
         row["time_256_s"] = round(seconds / len(frame) * 256, 2) if len(frame) else None
         rows.append(row)
+    if checkpoint is not None:
+        return rows, {"generator_checkpoint": str(checkpoint)}
     return rows, {"generator_manifest": str(Path(generator.folder) / "manifest.json"),
                   "generator_run": generator.producer_run_id or ""}

@@ -77,10 +77,10 @@ def test_bench_generation_reports_its_timings():
     assert result["time_256_s"] is None and result["workload"]["batch"] == 2  # only a 256 batch is the paper's figure
     assert result["time_s"] == pytest.approx(result["sample_s"] + result["ik_s"] + result["refine_s"], abs=2e-3)
     assert result["threads"] == 1
-    assert result["workload"]["sampler"] == "ddpm" and result["workload"]["denoiser_calls"] == 100
-    fast = run_generation_benchmark(repeats=1, threads=1, batch=2,
-                                    sets=("sampler.method=ddim", "sampler.steps=10", "refine.steps=5"))
-    assert fast["workload"]["denoiser_calls"] == 10 and fast["workload"]["refine_steps"] == 5
+    assert result["workload"]["sampler"] == "ddim" and result["workload"]["denoiser_calls"] == 25  # bench profile
+    paper = run_generation_benchmark(repeats=1, threads=1, batch=2, profile="paper", sets=("refine.steps=5",))
+    assert paper["workload"]["sampler"] == "ddpm" and paper["workload"]["denoiser_calls"] == 100
+    assert paper["workload"]["refine_steps"] == 5 and paper["workload"]["profile"] == "paper"
 
 
 def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
@@ -116,3 +116,24 @@ def test_generator_ablations_list_the_papers_variants():
     import flows.evaluate_generated as eg
 
     assert list(eg.GENERATOR_ABLATIONS) == ["Ours", "Joint Angles", "w/o Obj Embd", "w/o Refinement"]
+
+
+def test_sampler_quality_tool_compares_settings_on_the_same_scenes(trained, tmp_path, capsys):
+    from benchmarks import sampler_quality
+
+    workdir, base, _, _ = trained
+    out = tmp_path / "sq.json"
+    config_args = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--config"]
+    sets = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--set"]
+    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", config_args[0], "--split", "Com",
+            "--variant", "paper=", "--variant", "fast=sampler.method=ddim,sampler.steps=5,refine.steps=2",
+            "--set", "generator.eval_scenes=1", "--set", "generator.eval_grasps_per_scene=2", "--json", str(out)]
+    for item in sets:
+        argv += ["--set", item]
+    assert sampler_quality.main(argv) == 0
+    rows = {r["variant"]: r for r in json.loads(out.read_text())["rows"]}
+    assert set(rows) == {"paper", "fast"} and rows["paper"]["n"] == rows["fast"]["n"] == 2
+    assert rows["fast"]["overrides"] == ["sampler.method=ddim", "sampler.steps=5", "refine.steps=2"]
+    assert rows["fast"]["pn_before_refine_mm"] >= 0.0
+    assert sampler_quality.main([*argv, "--variant", "oops"]) == 2
+    assert "NAME=KEY=VALUE" in capsys.readouterr().err
