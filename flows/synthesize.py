@@ -25,9 +25,9 @@ MAX_ZERO_LINES = 8
 def selected_scenes(cfg: PipelineConfig, scenes: Manifest) -> list[dict[str, Any]]:
     """Scene records of the configured splits, at most ``max_scenes_per_combination`` per combination."""
     stage = cfg.synthesis
-    cap = stage.max_scenes_per_combination
     picked = []
     for record in read_scene_records(scenes):
+        cap = stage.scene_cap(record["split"])
         if record["split"] in stage.splits and (cap == 0 or record["index"] < cap):
             picked.append(record)
     return picked

@@ -26,11 +26,11 @@ import sys
 import time
 import zlib
 from pathlib import Path
-from typing import Any, Literal, Optional
+from typing import Any, Literal, Optional, Union
 
 import numpy as np
 from prefect import task
-from pydantic import Field
+from pydantic import Field, NonNegativeInt
 
 from components.config_base import Section
 from components.execution.cameras import CameraConfig
@@ -66,8 +66,15 @@ class SynthesisStageConfig(Section):
         "only). Measured on the mini run's Pl grasps: half have Q1 = 0 under the default metric.")
     splits: list[SplitName] = Field(default_factory=lambda: list(SPLITS),
                                     description="Scene splits of the scenes stage to synthesise grasps for.")
-    max_scenes_per_combination: int = Field(
-        0, ge=0, description="At most this many scenes per (split, combination) from the scenes stage (0 = all).")
+    max_scenes_per_combination: Union[NonNegativeInt, dict[SplitName, NonNegativeInt]] = Field(
+        0, description="At most this many scenes per (split, combination) from the scenes stage (0 = all): one "
+        "number for every split, or a mapping split -> number, e.g. {train: 2, Pl: 1} (a split it does not name: "
+        "all of its scenes).")
+
+    def scene_cap(self, split: str) -> int:
+        """The ``max_scenes_per_combination`` of one split (0 = all)."""
+        cap = self.max_scenes_per_combination
+        return cap.get(split, 0) if isinstance(cap, dict) else cap
     scenes_per_shard: int = Field(4, ge=1, le=10_000, description="Scenes synthesised by one cached shard.")
     renders_per_combination: int = Field(
         16, ge=0, le=64,

@@ -290,3 +290,15 @@ def test_min_q1_rejects_accepted_rows_that_are_not_above_it():
     out = reject_weak(arrays, q1, 0.0)  # 0: keep only grasps in force closure under the metric
     assert out["accepted"].tolist() == [True, False, False, False]
     assert out["reasons"].tolist() == ["accepted", "q1", "q1", "fc"]
+
+
+def test_scene_cap_per_split():
+    from components.errors import MultigraspError
+    from flows.config import load_config
+    from tasks.synthesize import SynthesisStageConfig
+
+    assert SynthesisStageConfig(max_scenes_per_combination=3).scene_cap("Geo") == 3
+    mapping = SynthesisStageConfig(max_scenes_per_combination={"train": 2, "Pl": 1})
+    assert (mapping.scene_cap("train"), mapping.scene_cap("Pl"), mapping.scene_cap("Geo")) == (2, 1, 0)
+    with pytest.raises(MultigraspError, match="max_scenes_per_combination"):
+        load_config("smoke", None, ["synthesis.max_scenes_per_combination={trian: 2}"])
