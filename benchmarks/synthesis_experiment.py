@@ -4,7 +4,8 @@ measurements in ``configs/bench.yaml`` and the README's "Synthesis settings" tab
     python -m benchmarks.synthesis_experiment --objects cube,cylinder --seed 0 \\
         --profile bench --set batch_size=32 --set mala_steps=800 --device cpu --threads 1 --json out.jsonl
 
-The scene is :func:`components.objects.sample_scene` of ``--objects`` with ``numpy`` seed ``--seed``; the
+The scene is :func:`components.objects.sample_scene` of ``--objects`` with ``numpy`` seed ``--seed`` and the
+profile's ``scenes.sampling`` (with ``--scene-set KEY=VALUE`` overrides, e.g. ``max_gap_m=0.025``); the
 optimiser is the profile's ``synthesis.optimizer`` with the ``--set KEY=VALUE`` overrides (keys of
 ``SynthesisConfig``; values as in ``multigrasp run --set``).  One JSON line is appended to ``--json``: the setting, seconds,
 filter reasons, accept rate, quantiles of the largest contact distance / E_fc / penetration over all
@@ -31,30 +32,35 @@ def _quantiles(values) -> list[float]:
 
 
 def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str = "bench", device: str = "cpu",
-                   threads: int = 0) -> dict:
+                   threads: int = 0, scene_sets: tuple[str, ...] = ()) -> dict:
     """Synthesise one scene with the profile's optimiser plus the ``KEY=VALUE`` overrides ``sets`` (keys of
     ``SynthesisConfig``, validated by the pipeline's ``--set`` machinery); returns the JSON-able summary."""
     import torch
 
     from benchmarks.synthesis import accepted_quality
     from components.hand import HandConfig, HandModel
-    from components.objects import ObjectLibrary, ObjectsConfig, ScenesConfig, sample_scene
+    from components.objects import ObjectLibrary, ObjectsConfig, sample_scene
     from components.synthesis import synthesize
     from flows.config import load_config
 
     if threads:
         torch.set_num_threads(threads)
-    config = load_config(profile, sets=[f"synthesis.optimizer.{item}" for item in sets])
+    config = load_config(profile, sets=[f"synthesis.optimizer.{item}" for item in sets]
+                         + [f"scenes.sampling.{item}" for item in scene_sets])
     cfg = config.synthesis.optimizer
     hand = HandModel(HandConfig(), device=device)
     with tempfile.TemporaryDirectory() as tmp:
         library = ObjectLibrary(ObjectsConfig(), cache_dir=Path(tmp))
-        scene = sample_scene(library, objects, np.random.default_rng(seed), ScenesConfig())
+        scene = sample_scene(library, objects, np.random.default_rng(seed), config.scenes.sampling)
+        centres = np.array([pl.position for pl in scene.objects])
         start = time.perf_counter()
         result = synthesize(hand, library, scene, cfg, torch.Generator(device=device).manual_seed(seed))
         seconds = time.perf_counter() - start
         terms = result.terms
-        summary = {"objects": objects, "seed": seed, "profile": profile, "set": list(sets), "device": device,
+        summary = {"objects": objects, "seed": seed, "profile": profile, "set": list(sets),
+                   "scene_set": list(scene_sets), "centre_distance_max_mm": round(float(
+                       max((np.linalg.norm(a[:2] - b[:2]) for i, a in enumerate(centres) for b in centres[i + 1:]),
+                           default=0.0)) * 1000.0, 1), "device": device,
                    "threads": torch.get_num_threads(), "batch": cfg.batch_size, "seconds": round(seconds, 2),
                    "reasons": result.reason_counts(), "accept_rate": round(result.accept_rate, 4),
                    "contact_distance_max_mm": _quantiles(terms["contact_distance_max"] * 1000.0),
@@ -71,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="scene and optimiser seed")
     parser.add_argument("--profile", default="bench", help="profile whose synthesis.optimizer is the base setting")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="optimiser override (repeatable)")
+    parser.add_argument("--scene-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="scene sampling override (repeatable), e.g. max_gap_m=0.025")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     parser.add_argument("--json", type=Path, required=True, metavar="OUT", help="JSON-lines file to append to")
@@ -78,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     from components.errors import MultigraspError
 
     try:
-        summary = run_experiment(args.objects.split(","), args.seed, args.set, args.profile, args.device, args.threads)
+        summary = run_experiment(args.objects.split(","), args.seed, args.set, args.profile, args.device, args.threads,
+                                 tuple(args.scene_set))
     except MultigraspError as exc:  # unknown object or profile, bad --set key or value: one line
         print(f"error: {exc}", file=sys.stderr)
         return 2

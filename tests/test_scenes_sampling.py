@@ -92,6 +92,31 @@ def test_overlapping_placements_are_never_returned(library, cfg):
         pb.disconnect(physicsClientId=client)
 
 
+def test_max_gap_keeps_every_object_near_another(library):
+    cfg = ScenesConfig(max_gap_m=0.02)
+    rng = np.random.default_rng(3)
+    client = pb.connect(pb.DIRECT)
+    try:
+        for names in [("capsule", "bar"), ("cube", "sphere"), ("small_cylinder",) * 4]:
+            for _ in range(4):
+                scene = sample_scene(library, names, rng, cfg)
+                bodies = [library.get(p.name).pybullet_body(client, p.position, p.quat_xyzw) for p in scene.objects]
+                for body in bodies:
+                    gaps = [min((c[8] for c in pb.getClosestPoints(body, other, 1.0, physicsClientId=client)), default=np.inf)
+                            for other in bodies if other != body]
+                    assert cfg.min_gap_m - 1e-9 <= min(gaps) <= cfg.max_gap_m + 1e-9
+                for body in bodies:
+                    pb.removeBody(body, physicsClientId=client)
+    finally:
+        pb.disconnect(physicsClientId=client)
+
+
+def test_impossible_max_gap_is_one_clear_error(library):
+    cfg = ScenesConfig(max_gap_m=0.001, max_tries=5)  # below min_gap_m: no placement can satisfy both
+    with pytest.raises(MultigraspError, match="max_gap_m"):
+        sample_scene(library, ("cube", "sphere"), np.random.default_rng(0), cfg)
+
+
 def test_placements_rest_on_the_table_within_the_xy_range(library, cfg):
     rng = np.random.default_rng(2)
     for names in [("cube", "duck"), ("torus",), ("small_cylinder",) * 5]:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Optional
 
 from pydantic import Field, field_validator, model_validator
 
@@ -106,6 +106,12 @@ class ScenesConfig(Section):
     xy_half_range_many_m: float = Field(0.075, gt=0, description="Same range for scenes with more than `many_threshold` objects (±7.5 cm).")
     many_threshold: int = Field(3, ge=1, description="Scenes with more objects than this use xy_half_range_many_m.")
     min_gap_m: float = Field(0.002, ge=0, description="Placements whose objects are closer than this (PyBullet closest distance, m) are rejected.")
+    max_gap_m: Optional[float] = Field(
+        None, gt=0,
+        description="If set, placements are also rejected while an object is farther than this from every other object "
+        "(PyBullet closest distance, m), so that the objects fit in one hand together.  None = off (DESIGN §4: uniform "
+        "in the range).  Measured on the mini run's cube + cylinder scenes: 44-69 % of candidates accepted at 4.8-5.7 cm "
+        "between centres, 14-19 % at 7.5-7.8 cm.")
     max_tries: int = Field(2000, ge=1, description="Rejection-sampling tries for one scene before giving up with an error.")
     settle_time_s: float = Field(1.0, gt=0, description="Simulated time for which a placed scene must stay put.")
     settle_tolerance_m: float = Field(0.002, gt=0, description="A scene is stable if every object origin moves less than this while settling.")

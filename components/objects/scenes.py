@@ -14,6 +14,7 @@ import itertools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 import pybullet as pb
@@ -123,6 +124,13 @@ def _closest_distance(client: int, body_a: int, body_b: int, max_distance: float
     return min((p[8] for p in points), default=float("inf"))
 
 
+def _within_max_gap(client: int, bodies: Sequence[int], max_gap: Optional[float]) -> bool:
+    """True when ``max_gap`` is None or every body has another within ``max_gap`` (closest distance, m)."""
+    if max_gap is None or len(bodies) < 2:
+        return True
+    return all(any(_closest_distance(client, a, b, max_gap) <= max_gap for b in bodies if b != a) for a in bodies)
+
+
 def xy_half_range(n_objects: int, cfg: ScenesConfig) -> float:
     """Placement half range: ``xy_half_range_m``, or ``xy_half_range_many_m`` above ``many_threshold`` objects."""
     return cfg.xy_half_range_many_m if n_objects > cfg.many_threshold else cfg.xy_half_range_m
@@ -131,7 +139,8 @@ def xy_half_range(n_objects: int, cfg: ScenesConfig) -> float:
 def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Generator, cfg: ScenesConfig) -> Scene:
     """A random scene of ``names``: each object in a random resting pose (by probability), random
     yaw, xy uniform in ±range; whole scenes are rejected while any two objects are closer than
-    ``min_gap_m`` (PyBullet closest distance between their collision shapes), at most ``max_tries`` times.
+    ``min_gap_m`` (PyBullet closest distance between their collision shapes) or, with ``max_gap_m``, while
+    an object is farther than that from every other one, at most ``max_tries`` times.
     """
     names = list(names)
     if not names:
@@ -146,14 +155,16 @@ def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Genera
             placements = [random_resting_placement(lib, n, half, rng) for n in names]
             for body, placement in zip(bodies, placements):
                 pb.resetBasePositionAndOrientation(body, placement.position, placement.quat_xyzw, physicsClientId=client)
-            if all(_closest_distance(client, a, b, cfg.min_gap_m) >= cfg.min_gap_m for a, b in itertools.combinations(bodies, 2)):
+            if all(_closest_distance(client, a, b, cfg.min_gap_m) >= cfg.min_gap_m for a, b in itertools.combinations(bodies, 2)) \
+                    and _within_max_gap(client, bodies, cfg.max_gap_m):
                 return Scene(objects=tuple(placements))
     finally:
         pb.disconnect(physicsClientId=client)
+    near = f" and within {cfg.max_gap_m * 100:.1f} cm of another (scenes.sampling.max_gap_m)" if cfg.max_gap_m else ""
     raise MultigraspError(
-        f"could not place {names} on the table without overlap in {cfg.max_tries} tries within ±{half * 100:.2f} cm; "
-        "increase scenes.xy_half_range_m (xy_half_range_many_m above "
-        f"{cfg.many_threshold} objects) or scenes.max_tries, or use fewer / smaller objects"
+        f"could not place {names} on the table without overlap{near} in {cfg.max_tries} tries within "
+        f"±{half * 100:.2f} cm; increase scenes.xy_half_range_m (xy_half_range_many_m above "
+        f"{cfg.many_threshold} objects){' or max_gap_m' if near else ''} or scenes.max_tries, or use fewer / smaller objects"
     )
 
 
