@@ -93,13 +93,31 @@ def tool_main(argv: list[str] | None, prog: str, description: str, run: Callable
     add_source_args(parser)
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    try:
+
+    def compute() -> dict:
         cfg, grasps = resolve_source(args)
-        result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
+        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps)
+
+    return finish_tool(args.json, compute, report)
+
+
+def row_report(line: Callable[[dict], str]) -> Callable[[dict], None]:
+    """A ``report`` for :func:`finish_tool` that prints ``line(row)`` for each of ``result["rows"]``."""
+    def report(result: dict) -> None:
+        for row in result["rows"]:
+            print(line(row))
+    return report
+
+
+def finish_tool(out: Path, compute: Callable[[], dict], report: Callable[[dict], None]) -> int:
+    """Run ``compute``; write its JSON-able result to ``out`` and summarise it with ``report`` (exit status 0),
+    or print a :class:`MultigraspError` as one line on stderr (exit status 2)."""
+    try:
+        result = compute()
     except MultigraspError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
     report(result)
     return 0

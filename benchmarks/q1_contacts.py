@@ -13,15 +13,20 @@ largest cap's Q1 and the seconds per grasp.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, read_accepted, resolve_source, scene_batches
-from components.errors import MultigraspError
+from benchmarks.grasp_tables import (
+    add_source_args,
+    finish_tool,
+    read_accepted,
+    resolve_source,
+    row_report,
+    scene_batches,
+)
 
 
 def run(grasps: Path, cfg, split: str | None, max_grasps: int, counts: list[int]) -> dict:
@@ -64,18 +69,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:
         print(f"error: --counts {args.counts!r}: give positive integers, e.g. 32,16,8", file=sys.stderr)
         return 2
-    try:
+
+    def compute() -> dict:
         cfg, grasps = resolve_source(args)
-        result = run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps, counts)
-    except MultigraspError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
-    for row in result["rows"]:
-        print(f"max contacts {row['q1_max_contacts']:3d}: Q1 {row['q1_mean']:.4f} (> 0: {row['q1_positive']:.0%}), "
-              f"|diff| {row['mean_abs_diff_from_largest']:.4f}, {row['seconds_per_grasp']:.3f} s per grasp")
-    return 0
+        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_grasps, counts)
+
+    return finish_tool(args.json, compute, row_report(
+        lambda row: f"max contacts {row['q1_max_contacts']:3d}: Q1 {row['q1_mean']:.4f} (> 0: {row['q1_positive']:.0%}), "
+                    f"|diff| {row['mean_abs_diff_from_largest']:.4f}, {row['seconds_per_grasp']:.3f} s per grasp"))
 
 
 if __name__ == "__main__":

@@ -16,10 +16,10 @@ with fewer denoiser calls and refinement steps.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from benchmarks.grasp_tables import finish_tool, row_report
 from components.errors import MultigraspError
 
 DEFAULT_VARIANTS = {
@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    try:
+
+    def compute() -> dict:
         if args.checkpoint is not None and not args.checkpoint.is_file():
             raise MultigraspError(f"--checkpoint {args.checkpoint}: no such file — give a generator.pt "
                                   "(stages/train-generator/<key>/generator.pt)")
@@ -88,16 +89,11 @@ def main(argv: list[str] | None = None) -> int:
 
             torch.set_num_threads(args.threads)
         cfg = load_config(args.profile, args.config, args.sets, workdir=args.workdir)
-        result = run(cfg, variants, args.split, args.checkpoint)
-    except MultigraspError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
-    for row in result["rows"]:
-        print(f"{row['variant']:28s} Q1 {row['q1']}  PN {row['pn_mm']} mm  Div {row['div_deg']}  "
-              f"PN before refinement {row['pn_before_refine_mm']} mm  {row['time_256_s']} s / 256")
-    return 0
+        return run(cfg, variants, args.split, args.checkpoint)
+
+    return finish_tool(args.json, compute, row_report(
+        lambda row: f"{row['variant']:28s} Q1 {row['q1']}  PN {row['pn_mm']} mm  Div {row['div_deg']}  "
+                    f"PN before refinement {row['pn_before_refine_mm']} mm  {row['time_256_s']} s / 256"))
 
 
 if __name__ == "__main__":
