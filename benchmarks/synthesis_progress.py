@@ -1,0 +1,69 @@
+"""What a synthesize stage has produced so far, finished or not: accept rate, rejection reasons, Q1, PN and
+Div per combination and for singles / pairs / more, from the shard tables on disk.
+
+    python -m benchmarks.synthesis_progress --stage-dir runs/stages/synthesize --json OUT
+
+Reads every ``<stage-dir>/*/grasps.parquet`` written by a shard (the merge unit's table, which repeats the
+accepted rows, is skipped), so it can be pointed at a running or interrupted stage.  Q1 / PN are the
+shards' own (``synthesis.metrics``), Div is :func:`components.metrics.joint_diversity_deg` over the accepted q.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from benchmarks.grasp_tables import finish_tool, row_report
+from components.errors import MultigraspError
+
+COLUMNS = ["combination", "accepted", "reason", "q1", "pn_mm", "q"]
+GROUPS = {1: "singles", 2: "pairs"}
+
+
+def _quality(frame) -> dict:
+    import numpy as np
+    import torch
+
+    from components.metrics import joint_diversity_deg
+
+    accepted = frame[frame.accepted]
+    out = {"candidates": len(frame), "accepted": int(len(accepted)),
+           "accept_rate": round(len(accepted) / max(len(frame), 1), 4),
+           "reasons": {k: int(v) for k, v in frame["reason"].value_counts().items() if k != "accepted"},
+           "q1": None, "q1_positive": None, "pn_mm": None, "div_deg": None}
+    if len(accepted):
+        out.update(q1=round(float(accepted.q1.mean()), 4), q1_positive=round(float((accepted.q1 > 0).mean()), 4),
+                   pn_mm=round(float(accepted.pn_mm.mean()), 3),
+                   div_deg=round(joint_diversity_deg(torch.as_tensor(np.stack(accepted.q.to_numpy()))), 2))
+    return out
+
+
+def run(stage_dir: Path) -> dict:
+    import pandas as pd
+
+    tables = sorted(p for p in stage_dir.glob("*/grasps.parquet") if not (p.parent / "rejected.parquet").exists())
+    if not tables:
+        raise MultigraspError(f"no shard tables under {stage_dir} — give a synthesize stage folder "
+                              "(<workdir>/stages/synthesize) after at least one shard finished")
+    frame = pd.concat([pd.read_parquet(p, columns=COLUMNS) for p in tables], ignore_index=True)
+    objects = frame["combination"].str.count(r"\+") + 1
+    rows = [{"combination": name, **_quality(group)} for name, group in frame.groupby("combination")]
+    rows.sort(key=lambda r: (r["combination"].count("+"), r["combination"]))
+    groups = {GROUPS.get(n, f"{n} objects"): {"combinations": int(frame[objects == n].combination.nunique()),
+                                              **_quality(frame[objects == n])} for n in sorted(objects.unique())}
+    return {"stage_dir": str(stage_dir), "shards": len(tables), "groups": groups, "rows": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.synthesis_progress", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--stage-dir", type=Path, required=True, help="<workdir>/stages/synthesize")
+    parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    args = parser.parse_args(argv)
+    return finish_tool(args.json, lambda: run(args.stage_dir), row_report(
+        lambda row: f"{row['combination']:28s} {row['accepted']:4d}/{row['candidates']:<4d} Q1 {row['q1']}  "
+                    f"PN {row['pn_mm']}  rejected {row['reasons']}"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,40 @@
+"""``python -m benchmarks.synthesis_progress``: a synthesize stage's shard tables summarised, merge skipped."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+
+from benchmarks.synthesis_progress import main
+
+
+def _shard(folder, combination, accepted, reasons, q1):
+    folder.mkdir(parents=True)
+    rows = [{"combination": combination, "accepted": a, "reason": r, "q1": q, "pn_mm": 1.0 if a else float("nan"),
+             "q": [0.1 * i] * 22} for i, (a, r, q) in enumerate(zip(accepted, reasons, q1))]
+    pd.DataFrame(rows).to_parquet(folder / "grasps.parquet")
+
+
+def test_summarises_shards_and_skips_the_merge(tmp_path, capsys):
+    stage = tmp_path / "synthesize"
+    _shard(stage / "a", "cube", [True, True, False], ["accepted", "accepted", "fc"], [0.2, 0.0, float("nan")])
+    _shard(stage / "b", "cube+sphere", [True, False, False, False], ["accepted", "fc", "fc", "penetration"],
+           [0.1, float("nan"), float("nan"), float("nan")])
+    _shard(stage / "merge", "cube", [True] * 5, ["accepted"] * 5, [0.9] * 5)  # the merge: repeats accepted rows
+    (stage / "merge" / "rejected.parquet").write_bytes(b"")
+    out = tmp_path / "p.json"
+    assert main(["--stage-dir", str(stage), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["shards"] == 2
+    singles, pairs = result["groups"]["singles"], result["groups"]["pairs"]
+    assert (singles["accepted"], singles["candidates"], singles["q1"], singles["q1_positive"]) == (2, 3, 0.1, 0.5)
+    assert singles["div_deg"] > 0.0 and singles["reasons"] == {"fc": 1}
+    assert (pairs["accepted"], pairs["candidates"], pairs["reasons"]) == (1, 4, {"fc": 2, "penetration": 1})
+    assert "cube+sphere" in capsys.readouterr().out
+
+
+def test_empty_stage_dir_is_one_line(tmp_path, capsys):
+    assert main(["--stage-dir", str(tmp_path), "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: no shard tables") and "\n" not in err
