@@ -73,7 +73,10 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS,
 
     generator = stage_output(cfg, "train-generator") if checkpoint is None else None
     scenes = stage_output(cfg, "scenes")
-    if (checkpoint is None and generator is None) or scenes is None:
+    if scenes is None:
+        raise MultigraspError("evaluate pregrasp --source generated needs the scenes stage for this config — run "
+                              "`multigrasp run --until scenes` first (same --profile / --config / --set)")
+    if checkpoint is None and generator is None:
         raise MultigraspError("evaluate pregrasp --source generated needs a trained generator for this config — run "
                               "`multigrasp run --until train-generator` first (same --profile / --config / --set)")
     stage, metrics = cfg.generator, cfg.synthesis.metrics
