@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import os
@@ -103,11 +104,19 @@ def _flush_prefect_logs() -> None:
 
 
 class HideUserErrorTracebacks(logging.Filter):
-    """Drop Prefect's traceback records for MultigraspError: the CLI prints them as one line."""
+    """Drop two kinds of Prefect traceback records that tell the user nothing:
+
+    * a :class:`MultigraspError` (the CLI prints it as one line);
+    * an ``asyncio.CancelledError`` logged by Prefect's in-process server (``prefect.server.*``, e.g. the
+      task-run recorder's "Error flushing 1 events") when the interpreter exits after a finished run and
+      cancels the server's background services: the run and its results are complete by then, yet the
+      traceback printed after the CLI's summary read like a failure."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         exc = record.exc_info[1] if record.exc_info else None
-        return not isinstance(exc, MultigraspError)
+        if isinstance(exc, MultigraspError):
+            return False
+        return not (isinstance(exc, asyncio.CancelledError) and record.name.startswith("prefect.server"))
 
 
 @contextlib.contextmanager

@@ -180,3 +180,27 @@ def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
 def test_ui_without_a_store_says_what_to_run(tmp_path, capsys):
     assert main(["ui", "--workdir", str(tmp_path)]) == 2
     assert "run `multigrasp run` first" in capsys.readouterr().err
+
+
+def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_records_kept():
+    """The in-process server's 'Error flushing events' at interpreter exit (a CancelledError) printed a traceback
+    after a finished run; the handler filter drops it, and drops MultigraspError tracebacks, nothing else."""
+    import asyncio
+    import logging
+    import sys
+
+    from components.errors import MultigraspError
+    from flows.runtime import HideUserErrorTracebacks
+
+    def record(name, exc):
+        try:
+            raise exc
+        except BaseException:
+            return logging.LogRecord(name, logging.ERROR, __file__, 1, "msg", None, sys.exc_info())
+
+    keep = HideUserErrorTracebacks().filter
+    assert not keep(record("prefect.server.services.task_run_recorder", asyncio.CancelledError()))
+    assert not keep(record("prefect.task_runs", MultigraspError("bad mesh")))
+    assert keep(record("prefect.task_runs", asyncio.CancelledError()))  # a cancelled task outside the server: kept
+    assert keep(record("prefect.server.api", RuntimeError("real failure")))
+    assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
