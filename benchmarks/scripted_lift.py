@@ -1,0 +1,96 @@
+"""How many synthesised pre-grasps survive the scripted "w/o RL" lift, per object combination.
+
+    python -m benchmarks.scripted_lift --profile bench --workdir runs/bench --split train --max-poses 30 --json OUT
+
+The paper's "w/o RL" baseline lifts straight up from the pre-grasp (its success: 1.37 %).  This tool runs that
+baseline (:class:`components.execution.evaluation.ScriptedLift`, the upward base force
+``specialists.scripted_force_fraction``) in the lift env (``lift`` config) with the evaluation protocol of
+``multigrasp evaluate execution`` (:func:`components.execution.evaluation.evaluate_lift`: ``--trials`` seeded
+perturbations of each pre-grasp, success = every object above ``lift.eval_success_height_m`` at the end), on the
+first ``--max-poses`` accepted grasps of every combination of a ``synthesize`` stage (found or given as in
+:mod:`benchmarks.grasp_tables`).  It needs no trained policy: the point-cloud features are those of an untrained
+PointNet, which the scripted policy never reads.  It measures how liftable the pre-grasps are before any RL.
+Per combination: poses, trials, success rate, median and 90th percentile of the final lift of the lowest object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.grasp_tables import add_source_args, finish_tool, resolve_source, row_report
+
+
+def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> dict:
+    """The scripted lift on every combination's first ``max_poses`` accepted grasps (module docstring)."""
+    import pyarrow.parquet as pq
+
+    from components.errors import MultigraspError
+    from components.execution import LiftEnv
+    from components.execution.evaluation import ScriptedLift, evaluate_lift
+    from components.execution.pointnet import PointNetEncoder
+    from components.hand import HandModel
+    from components.objects import ObjectLibrary
+    from tasks.preflight import cache_dir
+    from tasks.specialists import records_from_table
+
+    frame = pq.read_table(grasps).to_pandas()
+    frame = frame[frame["accepted"]] if "accepted" in frame else frame
+    if split is not None:
+        frame = frame[frame["split"] == split]
+    if frame.empty:
+        raise MultigraspError(f"no accepted grasps{' of split ' + split if split else ''} in {grasps} — run "
+                              "`multigrasp run --until synthesize` first, or choose another --split")
+    hand = HandModel(cfg.hand)
+    library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
+    # untrained, of the configured size: the scripted policy never reads the features (module docstring)
+    encoder = PointNetEncoder(cfg.pointnet.encoder.model_copy(update={"feature_dim": cfg.lift.feature_dim})).freeze()
+    policy = ScriptedLift(cfg.specialists.scripted_force_fraction)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        urdf = hand.export_urdf(Path(tmp) / "hand")
+        for combination, group in frame.groupby("combination", sort=True):
+            records = records_from_table(group.iloc[:max_poses])
+            env = LiftEnv(hand, library, urdf, records, cfg.lift, encoder, record_order="cycle")
+            try:
+                result = evaluate_lift(env, policy, trials=trials, seed=cfg.specialists.eval_seed)
+            finally:
+                env.close()
+            lifts = np.asarray(result.final_lifts)
+            rows.append({"combination": combination, "n_poses": result.n_poses, "trials": trials,
+                         "succ": round(result.succ, 4), "median_final_lift_m": round(float(np.median(lifts)), 4),
+                         "p90_final_lift_m": round(float(np.quantile(lifts, 0.9)), 4)})
+            print(f"scripted lift: {combination} done", file=sys.stderr, flush=True)
+    total = sum(r["n_poses"] * r["trials"] for r in rows)
+    wins = sum(r["succ"] * r["n_poses"] * r["trials"] for r in rows)
+    return {"grasps": str(grasps), "split": split, "force_fraction": cfg.specialists.scripted_force_fraction,
+            "succ_all": round(wins / total, 4) if total else 0.0, "rows": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.scripted_lift", description=__doc__.split("\n\n")[0])
+    add_source_args(parser)
+    parser.add_argument("--max-poses", type=int, default=30, help="accepted grasps per combination (default 30)")
+    parser.add_argument("--trials", type=int, default=5, help="seeded perturbed trials per grasp (default 5, as the paper)")
+    parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    args = parser.parse_args(argv)
+    if args.max_poses < 1 or args.trials < 1:
+        print("error: --max-poses and --trials must be at least 1", file=sys.stderr)
+        return 2
+
+    def compute() -> dict:
+        cfg, grasps = resolve_source(args)
+        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials)
+
+    return finish_tool(args.json, compute, row_report(
+        lambda row: f"{row['combination']:24s} {row['n_poses']:4d} poses x {row['trials']} trials: success "
+                    f"{row['succ']:.1%}, final lift median {row['median_final_lift_m']:.3f} m, "
+                    f"p90 {row['p90_final_lift_m']:.3f} m"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""``python -m benchmarks.scripted_lift``: the "w/o RL" lift on a synthesize stage's grasps, per combination."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from benchmarks.scripted_lift import main
+
+#: A sphere of the library (radius 2.5 cm) resting on the table, and an open hand 30 cm above it.
+SPHERE_ON_TABLE = [0.0, 0.0, 0.025]
+
+
+def hand_above_sphere_table(hand, accepted=(True, True, False)):
+    n = len(accepted)
+    q = hand.open_pose().double().numpy().tolist()
+    return pa.table({
+        "scene_id": ["s0"] * n, "split": ["train"] * n, "combination": ["sphere"] * n, "accepted": list(accepted),
+        "row": list(range(n)), "object_names": [["sphere"]] * n, "object_positions": [SPHERE_ON_TABLE] * n,
+        "object_quats_xyzw": [[0.0, 0.0, 0.0, 1.0]] * n,
+        "p": [[0.0, 0.0, 0.3]] * n, "R": [np.eye(3).ravel().tolist()] * n, "q": [q] * n,
+    })
+
+
+def test_a_hand_that_does_not_touch_the_object_lifts_nothing(hand, tmp_path, capsys):
+    """The scripted force raises the hand; the sphere it never touched stays on the table: success 0, and the
+    final lift (of the object, not the hand) is ~0.  The rejected row is not run."""
+    path = tmp_path / "grasps.parquet"
+    pq.write_table(hand_above_sphere_table(hand), path)
+    out = tmp_path / "lift.json"
+    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
+                 "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "2",
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    (row,) = result["rows"]
+    assert row["combination"] == "sphere" and row["n_poses"] == 2 and row["trials"] == 2
+    assert row["succ"] == 0.0 and result["succ_all"] == 0.0
+    assert abs(row["median_final_lift_m"]) < 0.005 and abs(row["p90_final_lift_m"]) < 0.005
+    assert "sphere" in capsys.readouterr().out
+
+
+def test_bad_trials_and_missing_split_are_one_line(hand, tmp_path, capsys):
+    assert main(["--trials", "0", "--json", str(tmp_path / "x.json")]) == 2
+    assert capsys.readouterr().err.strip().startswith("error: --max-poses and --trials")
+    path = tmp_path / "grasps.parquet"
+    pq.write_table(hand_above_sphere_table(hand), path)
+    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "Geo",
+                 "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: no accepted grasps of split Geo") and "\n" not in err
