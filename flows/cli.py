@@ -24,8 +24,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 from components.errors import MultigraspError
@@ -294,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
                 "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}
+    previous = _terminate_as_interrupt()
     try:
         return handlers[args.command](args)
     except MultigraspError as exc:
@@ -302,6 +305,24 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted — finished units are kept; run the same command again to resume", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _terminate_as_interrupt():
+    """Make SIGTERM (``kill PID``, a cluster scheduler's pre-emption or time limit) stop a command the way Ctrl-C
+    does: the interrupt unwinds through the context managers, so the helper processes this invocation started
+    (Prefect's temporary API server, collector workers) are stopped instead of being left running, and the
+    'finished units are kept' line is printed.  Returns the previous handler (None when not in the main thread,
+    where Python allows no handler)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_interrupt)
 
 
 if __name__ == "__main__":

@@ -204,3 +204,57 @@ def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_r
     assert keep(record("prefect.task_runs", asyncio.CancelledError()))  # a cancelled task outside the server: kept
     assert keep(record("prefect.server.api", RuntimeError("real failure")))
     assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    from pathlib import Path
+
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
+def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
+    """`kill PID` (or a cluster scheduler's SIGTERM) used to end the CLI at once and leave Prefect's temporary API
+    server running; it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED (130), the resume hint, and the
+    helper processes it started are gone."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from flows.cli import EXIT_INTERRUPTED
+
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir",
+                             str(tmp_path / "run")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        seen = []
+        for line in proc.stdout:  # the first stage has started: Prefect and MLflow are up
+            seen.append(line)
+            if line.startswith("stage scenes"):
+                break
+        deadline = time.monotonic() + 60
+        while not _children(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        helpers = _children(proc.pid)
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = "".join(seen) + rest
+    assert proc.returncode == EXIT_INTERRUPTED, out
+    assert "interrupted — finished units are kept" in out
+    time.sleep(2)
+    alive = [pid for pid in helpers if os.path.exists(f"/proc/{pid}")
+             and "Z" not in open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]]
+    assert not alive, f"helper processes left running: {helpers}"
