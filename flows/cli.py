@@ -288,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "verbose", False):  # before Prefect is imported: it reads its level once
         os.environ["PREFECT_LOGGING_LEVEL"] = "INFO"
+    else:  # before MLflow is imported: it sets its loggers' level from this once (its default, INFO, printed
+        # "Creating initial MLflow database tables..." lines into every first run of a work dir)
+        os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
     logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "verbose", False):
