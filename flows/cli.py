@@ -299,33 +299,81 @@ def main(argv: list[str] | None = None) -> int:
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
                 "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}
-    previous = _terminate_as_interrupt()
+    stopper = Interrupts()
+    previous = stopper.install()
     try:
         return handlers[args.command](args)
     except MultigraspError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
-        print("interrupted — finished units are kept; run the same command again to resume", file=sys.stderr)
+        print(INTERRUPTED_MESSAGE, file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
-def _raise_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+INTERRUPTED_MESSAGE = "interrupted — finished units are kept; run the same command again to resume"
 
 
-def _terminate_as_interrupt():
-    """Make SIGTERM (``kill PID``, a cluster scheduler's pre-emption or time limit) stop a command the way Ctrl-C
-    does: the interrupt unwinds through the context managers, so the helper processes this invocation started
-    (Prefect's temporary API server, collector workers) are stopped instead of being left running, and the
-    'finished units are kept' line is printed.  Returns the previous handler (None when not in the main thread,
-    where Python allows no handler)."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(signal.SIGTERM, _raise_interrupt)
+class Interrupts:
+    """Ctrl-C (SIGINT) and ``kill PID`` (SIGTERM: also what a cluster scheduler sends at pre-emption or its time
+    limit) stop a command in two steps.
+
+    1. The first signal raises KeyboardInterrupt in the main thread: the stack unwinds through the context
+       managers, so the helper processes this invocation started (Prefect's temporary API server, collector
+       workers) are stopped, and the 'finished units are kept' line is printed.  A unit running in a worker
+       *thread* (a shard, a generator training) cannot be interrupted from outside and would run to its end, so
+       the handler says so and how to stop at once.
+    2. A second signal stops now: it terminates this process's child processes and exits with
+       EXIT_INTERRUPTED.  Nothing finished is lost -- units are written atomically with their manifest last, and
+       trainings resume from their last checkpoint.
+
+    ``exit`` and ``children`` are injectable for tests."""
+
+    def __init__(self, exit=os._exit, children=None, stream=None):
+        self.count = 0
+        self._exit, self._stream = exit, stream
+        self._children = children or _child_pids
+
+    def install(self) -> dict:
+        """Install the handler for SIGINT and SIGTERM; returns the previous handlers (empty outside the main thread,
+        where Python allows no handler)."""
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        return {signum: signal.signal(signum, self.handle) for signum in (signal.SIGINT, signal.SIGTERM)}
+
+    def handle(self, signum, frame) -> None:
+        self.count += 1
+        stream = self._stream or sys.stderr
+        if self.count == 1:
+            print("stopping — work running in a thread finishes first; press Ctrl-C again (or send SIGTERM "
+                  "again) to stop at once", file=stream, flush=True)
+            raise KeyboardInterrupt
+        for pid in self._children():
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except OSError:
+                pass
+        print(INTERRUPTED_MESSAGE, file=stream, flush=True)
+        self._exit(EXIT_INTERRUPTED)
+
+
+def _child_pids() -> list[int]:
+    """This process's child processes (Linux /proc; elsewhere none are known)."""
+    me, out = os.getpid(), []
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return out
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if len(fields) > 1 and fields[1] == str(me):
+            out.append(int(stat.parent.name))
+    return out
 
 
 if __name__ == "__main__":

@@ -224,7 +224,8 @@ def _children(pid: int) -> list[int]:
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
 def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
     """`kill PID` (or a cluster scheduler's SIGTERM) used to end the CLI at once and leave Prefect's temporary API
-    server running; it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED (130), the resume hint, and the
+    server running (or, inside a flow, was swallowed); it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED
+    (130), the resume hint, and the
     helper processes it started are gone."""
     import os
     import signal
@@ -259,3 +260,34 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
     alive = [pid for pid in helpers if os.path.exists(f"/proc/{pid}")
              and "Z" not in open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]]
     assert not alive, f"helper processes left running: {helpers}"
+
+
+def test_a_second_interrupt_stops_at_once_and_terminates_the_children():
+    """A unit running in a worker thread cannot be interrupted, so the first Ctrl-C / SIGTERM unwinds the main
+    thread (KeyboardInterrupt) and the second one terminates the child processes and exits 130 at once."""
+    import io
+    import signal
+
+    from flows.cli import EXIT_INTERRUPTED, Interrupts
+
+    exits, stream = [], io.StringIO()
+    stopper = Interrupts(exit=exits.append, children=lambda: [2 ** 22 + 12345], stream=stream)  # no such pid
+    with pytest.raises(KeyboardInterrupt):
+        stopper.handle(signal.SIGTERM, None)
+    assert exits == [] and "press Ctrl-C again" in stream.getvalue()
+    stopper.handle(signal.SIGINT, None)  # the unknown child pid is skipped quietly
+    assert exits == [EXIT_INTERRUPTED] and "finished units are kept" in stream.getvalue()
+
+
+def test_child_pids_finds_a_child_process():
+    import subprocess
+    import sys
+
+    from flows.cli import _child_pids
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert child.pid in _child_pids()
+    finally:
+        child.kill()
+        child.wait()
