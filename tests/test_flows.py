@@ -223,10 +223,9 @@ def _children(pid: int) -> list[int]:
 
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
 def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
-    """`kill PID` (or a cluster scheduler's SIGTERM) used to end the CLI at once and leave Prefect's temporary API
-    server running (or, inside a flow, was swallowed); it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED
-    (130), the resume hint, and the
-    helper processes it started are gone."""
+    """`kill PID` (or a cluster scheduler's SIGTERM) was swallowed inside a flow, or ended the CLI at once and left
+    Prefect's temporary API server running; it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED (130), the
+    resume hint, and the helper processes it started are gone."""
     import os
     import signal
     import subprocess
