@@ -87,9 +87,10 @@ def test_local_switches_stay_in_the_contacts_region(hand):
 def test_filter_reports_the_first_failing_criterion_and_counts_them():
     cfg = SynthesisConfig()
     ok = {"fc_per_object": torch.tensor([[0.1, 0.0]]), "contact_distance_max": torch.tensor([0.001]),
+          "contact_distance_per_object": torch.tensor([[0.001, 0.001]]),
           "penetration_depth_max": torch.tensor([0.001]), "prior": torch.tensor([0.0])}
     rows = [dict(ok), dict(ok, fc_per_object=torch.tensor([[0.1, 0.3]])),
-            dict(ok, contact_distance_max=torch.tensor([0.006])),
+            dict(ok, contact_distance_max=torch.tensor([0.009]), contact_distance_per_object=torch.tensor([[0.001, 0.006]])),
             dict(ok, penetration_depth_max=torch.tensor([0.0051]), prior=torch.tensor([0.2])),
             dict(ok, prior=torch.tensor([0.11])), dict(ok, prior=torch.tensor([float("nan")]))]
     terms = {k: torch.cat([r[k] for r in rows]) for k in ok}
@@ -262,9 +263,10 @@ def test_mean_filter_reduces_each_objects_contacts_by_their_mean():
     from components.synthesis.filtering import contact_distance_for_filter
 
     terms = {"contact_distance_max": torch.tensor([0.012]), "contact_distance_per_object": torch.tensor([[0.004, 0.003]])}
-    assert float(contact_distance_for_filter(terms, SynthesisConfig())) == pytest.approx(0.012)
-    mean_cfg = SynthesisConfig(filter_contact_distance_reduce="mean")
-    assert float(contact_distance_for_filter(terms, mean_cfg)) == pytest.approx(0.004)
+    max_cfg = SynthesisConfig(filter_contact_distance_reduce="max")
+    assert float(contact_distance_for_filter(terms, max_cfg)) == pytest.approx(0.012)
+    # the default is the official reduction: each object's mean, then the worst object
+    assert float(contact_distance_for_filter(terms, SynthesisConfig())) == pytest.approx(0.004)
 
 
 def test_approach_stage_brings_contacts_closer_without_force_closure_and_runs_in_synthesize(hand, library):

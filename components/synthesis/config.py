@@ -212,10 +212,12 @@ class SynthesisConfig(Section):
     filter_contact_distance_m: float = Field(
         0.005, gt=0.0, description="Accept if every contact point is within this distance of its object's surface (official: 5 mm).")
     filter_contact_distance_reduce: Literal["max", "mean"] = Field(
-        "max",
-        description="How the contact distances enter the contact-distance criterion: 'max' = every contact within "
-        "filter_contact_distance_m (this project's stricter rule); 'mean' = each object's mean contact distance "
-        "within it (the official release: surf_dist.mean(-1).max(-1)).")
+        "mean",
+        description="How the contact distances enter the contact-distance criterion: 'mean' (default) = each "
+        "object's mean contact distance within filter_contact_distance_m (the official release: "
+        "surf_dist.mean(-1).max(-1)); 'max' = every contact within it (stricter; the default before 2026-11-22). "
+        "On the bench profile's first pass (20 training pairs x 128 candidates) 'mean' accepts 898 (35.1 %, Q1 "
+        "0.054, PN 3.02 mm) where 'max' accepts 540 (21.1 %, Q1 0.062, PN 2.75 mm).")
     filter_penetration_m: float = Field(
         0.005, gt=0.0,
         description="Accept if the deepest sampled penetration (hand-object both ways, hand-table, self) is below this (official: 5 mm).")

@@ -3,9 +3,9 @@
 A grasp is accepted when every criterion holds (thresholds from :class:`SynthesisConfig`, official values):
 
 * ``fc``:               max over objects of E_fc < ``filter_fc`` (0.25)
-* ``contact_distance``: max over all contacts of |d_O(c)| < ``filter_contact_distance_m`` (5 mm) -- every
-  contact on its object -- or, with ``filter_contact_distance_reduce='mean'``, the max over objects of the
-  mean |d_O| of the object's contacts, as the official release (less strict)
+* ``contact_distance``: max over objects of the mean |d_O(c)| of the object's contacts <
+  ``filter_contact_distance_m`` (5 mm), as the official release -- or, with
+  ``filter_contact_distance_reduce='max'``, every contact within it (stricter)
 * ``penetration``:      the deepest sampled penetration -- object points in the hand, hand points in the
   objects, hand below the table, hand self-penetration -- < ``filter_penetration_m`` (5 mm)
 * ``prior``:            E_prior (rad beyond the joint limits) < ``filter_prior`` (0.1)
