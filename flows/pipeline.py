@@ -157,6 +157,9 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
         valid = [valid_manifest(s.folder) for s in specs]
         corrupt = [s for s, v in zip(specs, valid) if v is None and (s.folder / "manifest.json").exists()]
         n_done = sum(v is not None for v in valid)
+        # a planned unit's folder without a manifest: running now, or interrupted (a training keeps its checkpoint)
+        started = sum(v is None and s.folder.is_dir() and not (s.folder / "manifest.json").exists()
+                      for s, v in zip(specs, valid))
         final = valid[-1] if specs and specs[-1].unit in ("merge", "stage") else None
         outputs[module.STAGE] = final
         stage_dir = cfg.run.workdir / "stages" / module.STAGE
@@ -165,8 +168,11 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
             state, detail = "done", "served from cache on the next run"
         elif corrupt:
             state, detail = "corrupt", f"{len(corrupt)} unit(s) with missing/altered files will be recomputed"
-        elif n_done:
-            state, detail = "partial", "finished units are kept; the next run computes the rest"
+        elif n_done or started:
+            done_part = "finished units are kept; " if n_done else ""
+            started_part = (f"{started} unit(s) started and not finished (running now, or interrupted: a training "
+                            "resumes from its last checkpoint); " if started else "")
+            state, detail = "partial", f"{done_part}{started_part}the next run computes the rest"
         elif others:
             state, detail = "stale", "outputs exist only for another config or code version"
         else:

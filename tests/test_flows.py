@@ -119,6 +119,22 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
     assert "missing" in capsys.readouterr().out
 
 
+def test_status_tells_a_started_unit_from_another_configs_outputs(tmp_path):
+    """A unit folder without a manifest (a training running now, or interrupted with its checkpoint) is 'partial',
+    not 'stale' ('outputs exist only for another config'), which it was reported as before."""
+    import flows.scenes
+
+    cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
+    other = tmp_path / "stages" / "scenes" / "0123456789abcdef0123"
+    other.mkdir(parents=True)
+    assert {r.name: r.state for r in status(cfg)}["scenes"] == "stale"
+    first = flows.scenes.planned_units(cfg, {})[0]
+    first.folder.mkdir(parents=True)
+    (first.folder / "checkpoint.pt").write_bytes(b"x")
+    row = next(r for r in status(cfg) if r.name == "scenes")
+    assert row.state == "partial" and "1 unit(s) started and not finished" in row.detail
+
+
 @pytest.mark.parametrize("override, expected", [
     ("objects.train=[cube,banana]", "banana"),
     ("scenes.bogus=1", "unknown config key 'scenes.bogus'"),
