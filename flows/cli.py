@@ -310,8 +310,9 @@ def main(argv: list[str] | None = None) -> int:
         print(INTERRUPTED_MESSAGE, file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        if not stopper.count:  # after an interrupt, keep the handler: a second signal during shutdown stops at once
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
 
 
 INTERRUPTED_MESSAGE = "interrupted — finished units are kept; run the same command again to resume"

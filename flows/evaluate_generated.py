@@ -12,7 +12,9 @@ of the setting's grasps and ``time_256_s`` that time scaled to 256 grasps.  Ever
 from __future__ import annotations
 
 import math
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -53,11 +55,17 @@ def generator_ablation_rows(cfg: PipelineConfig, ours: dict[str, Any] | None = N
     return rows
 
 
-def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS,
-                   checkpoint: Path | None = None) -> tuple[list[dict[str, Any]], dict[str, str]]:
+def _progress_line(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint: Path | None = None,
+                   progress: Callable[[str], None] | None = _progress_line
+                   ) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """The Gen rows of ``settings`` (module docstring) and where the model came from: the config's
     ``train-generator`` stage, or ``checkpoint`` (a ``generator.pt``) when given.  Each row also has
-    ``pn_before_refine_mm``, the mean deepest penetration of the raw samples (after IK, before refinement)."""
+    ``pn_before_refine_mm``, the mean deepest penetration of the raw samples (after IK, before refinement).
+    ``progress`` gets one line per scene (setting, scene k/n, elapsed, ETA; stderr by default)."""
     import pandas as pd
     import torch
 
@@ -85,9 +93,11 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS,
     model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
     records = read_scene_records(scenes)
     rows = []
-    for name, split in settings:
-        picked = [r for r in records if r["split"] == split and len(r["objects"]) <= stage.model.max_objects]
-        picked = picked[: stage.eval_scenes]
+    plan = [(name, split, [r for r in records if r["split"] == split
+                           and len(r["objects"]) <= stage.model.max_objects][: stage.eval_scenes])
+            for name, split in settings]
+    total, done, begin = sum(len(picked) for _, _, picked in plan), 0, time.perf_counter()
+    for name, split, picked in plan:
         frame_rows, seconds = [], 0.0
         for number, record in enumerate(picked):
             scene = Scene.from_dict(record["scene"])
@@ -111,6 +121,11 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS,
             for i in range(n):
                 frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy(),
                                    "pn_before_mm": float(refined.depth_before[i]) * 1000.0})
+            done += 1
+            if progress is not None:
+                elapsed = time.perf_counter() - begin
+                progress(f"generated {name} scene {number + 1}/{len(picked)} ({n} grasps; generation, IK, refinement, "
+                         f"Q1, PN) elapsed {elapsed:.0f}s ETA {elapsed / done * (total - done):.0f}s")
         frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q", "pn_before_mm"])
         row = setting_row(Setting(name, split), frame, len(frame))
         row["pn_before_refine_mm"] = round(float(frame["pn_before_mm"].mean()), 3) if len(frame) else None
