@@ -22,14 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, finish_tool, resolve_source, row_report
+from benchmarks.grasp_tables import add_source_args, finish_tool, read_accepted, resolve_source, row_report
 
 
 def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> dict:
     """The scripted lift on every combination's first ``max_poses`` accepted grasps (module docstring)."""
-    import pyarrow.parquet as pq
-
-    from components.errors import MultigraspError
     from components.execution import LiftEnv
     from components.execution.evaluation import ScriptedLift, evaluate_lift
     from components.execution.pointnet import PointNetEncoder
@@ -38,13 +35,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> di
     from tasks.preflight import cache_dir
     from tasks.specialists import records_from_table
 
-    frame = pq.read_table(grasps).to_pandas()
-    frame = frame[frame["accepted"]] if "accepted" in frame else frame
-    if split is not None:
-        frame = frame[frame["split"] == split]
-    if frame.empty:
-        raise MultigraspError(f"no accepted grasps{' of split ' + split if split else ''} in {grasps} — run "
-                              "`multigrasp run --until synthesize` first, or choose another --split")
+    frame = read_accepted(grasps, split, sys.maxsize)  # every accepted row; --max-poses caps each combination
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     # untrained, of the configured size: the scripted policy never reads the features (module docstring)

@@ -21,7 +21,8 @@ COLUMNS = ["combination", "accepted", "reason", "q1", "pn_mm", "q"]
 GROUPS = {1: "singles", 2: "pairs"}
 
 
-def _quality(frame) -> dict:
+def quality_summary(frame) -> dict:
+    """Candidates, accepted, accept rate, rejection reasons and the accepted rows' Q1 / PN / Div of a table."""
     import numpy as np
     import torch
 
@@ -39,19 +40,26 @@ def _quality(frame) -> dict:
     return out
 
 
-def run(stage_dir: Path) -> dict:
-    import pandas as pd
-
+def shard_tables(stage_dir: Path) -> list[Path]:
+    """The shards' ``grasps.parquet`` under a synthesize stage folder (the merge's, beside its
+    ``rejected.parquet``, left out); a one-line error when there is none."""
     tables = sorted(p for p in stage_dir.glob("*/grasps.parquet") if not (p.parent / "rejected.parquet").exists())
     if not tables:
         raise MultigraspError(f"no shard tables under {stage_dir} — give a synthesize stage folder "
                               "(<workdir>/stages/synthesize) after at least one shard finished")
+    return tables
+
+
+def run(stage_dir: Path) -> dict:
+    import pandas as pd
+
+    tables = shard_tables(stage_dir)
     frame = pd.concat([pd.read_parquet(p, columns=COLUMNS) for p in tables], ignore_index=True)
     objects = frame["combination"].str.count(r"\+") + 1
-    rows = [{"combination": name, **_quality(group)} for name, group in frame.groupby("combination")]
+    rows = [{"combination": name, **quality_summary(group)} for name, group in frame.groupby("combination")]
     rows.sort(key=lambda r: (r["combination"].count("+"), r["combination"]))
     groups = {GROUPS.get(n, f"{n} objects"): {"combinations": int(frame[objects == n].combination.nunique()),
-                                              **_quality(frame[objects == n])} for n in sorted(objects.unique())}
+                                              **quality_summary(frame[objects == n])} for n in sorted(objects.unique())}
     return {"stage_dir": str(stage_dir), "shards": len(tables), "groups": groups, "rows": rows}
 
 

@@ -361,9 +361,9 @@ class Interrupts:
         self._exit(EXIT_INTERRUPTED)
 
 
-def _child_pids() -> list[int]:
-    """This process's child processes (Linux /proc; elsewhere none are known)."""
-    me, out = os.getpid(), []
+def _child_pids(parent: int | None = None) -> list[int]:
+    """The child processes of ``parent`` (default: this process) (Linux /proc; elsewhere none are known)."""
+    me, out = os.getpid() if parent is None else parent, []
     proc = Path("/proc")
     if not proc.is_dir():
         return out

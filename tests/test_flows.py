@@ -222,21 +222,6 @@ def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_r
     assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (Linux /proc)."""
-    from pathlib import Path
-
-    out = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            out.append(int(stat.parent.name))
-    return out
-
-
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
 def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
     """`kill PID` (or a cluster scheduler's SIGTERM) was swallowed inside a flow, or ended the CLI at once and left
@@ -248,7 +233,7 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
     import sys
     import time
 
-    from flows.cli import EXIT_INTERRUPTED
+    from flows.cli import EXIT_INTERRUPTED, _child_pids
 
     proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir",
                              str(tmp_path / "run")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -259,9 +244,9 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
             if line.startswith("stage scenes"):
                 break
         deadline = time.monotonic() + 60
-        while not _children(proc.pid) and time.monotonic() < deadline:
+        while not _child_pids(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.2)
-        helpers = _children(proc.pid)
+        helpers = _child_pids(proc.pid)
         proc.send_signal(signal.SIGTERM)
         rest, _ = proc.communicate(timeout=120)
     finally:

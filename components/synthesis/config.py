@@ -217,7 +217,7 @@ class SynthesisConfig(Section):
         "object's mean contact distance within filter_contact_distance_m (the official release: "
         "surf_dist.mean(-1).max(-1)); 'max' = every contact within it (stricter; the default before 2026-11-22). "
         "On the bench profile's first pass (20 training pairs x 128 candidates) 'mean' accepts 898 (35.1 %, Q1 "
-        "0.054, PN 3.02 mm) where 'max' accepts 540 (21.1 %, Q1 0.062, PN 2.75 mm).")
+        "0.054, PN 3.02 mm) where 'max' accepts 540 (21.1 %, Q1 0.062, PN 2.75 mm) (python -m benchmarks.refilter).")
     filter_penetration_m: float = Field(
         0.005, gt=0.0,
         description="Accept if the deepest sampled penetration (hand-object both ways, hand-table, self) is below this (official: 5 mm).")
