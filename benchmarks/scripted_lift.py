@@ -4,7 +4,8 @@
 
 The paper's "w/o RL" baseline lifts straight up from the pre-grasp (its success: 1.37 %).  This tool runs that
 baseline (:class:`components.execution.evaluation.ScriptedLift`, the upward base force
-``specialists.scripted_force_fraction``) in the lift env (``lift`` config) with the evaluation protocol of
+``specialists.scripted_force_fraction``), or with ``--controller squeeze`` the squeeze-and-lift that PPO starts from
+(``specialists.squeeze_*``: close the flexion joints while pushing up more gently), in the lift env (``lift`` config) with the evaluation protocol of
 ``multigrasp evaluate execution`` (:func:`components.execution.evaluation.evaluate_lift`: ``--trials`` seeded
 perturbations of each pre-grasp, success = every object above ``lift.eval_success_height_m`` at the end), on the
 first ``--max-poses`` accepted grasps of every combination of a ``synthesize`` stage (found or given as in
@@ -25,10 +26,11 @@ import numpy as np
 from benchmarks.grasp_tables import add_source_args, finish_tool, read_accepted, resolve_source, row_report
 
 
-def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> dict:
+def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight") -> dict:
     """The scripted lift on every combination's first ``max_poses`` accepted grasps (module docstring)."""
     from components.execution import LiftEnv
     from components.execution.evaluation import ScriptedLift, evaluate_lift
+    from tasks.specialists import squeeze_lift
     from components.execution.pointnet import PointNetEncoder
     from components.hand import HandModel
     from components.objects import ObjectLibrary
@@ -40,7 +42,9 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> di
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     # untrained, of the configured size: the scripted policy never reads the features (module docstring)
     encoder = PointNetEncoder(cfg.pointnet.encoder.model_copy(update={"feature_dim": cfg.lift.feature_dim})).freeze()
-    policy = ScriptedLift(cfg.specialists.scripted_force_fraction)
+    stage = cfg.specialists
+    policy = (ScriptedLift(stage.scripted_force_fraction) if controller == "straight"
+              else squeeze_lift(stage, hand.actuated_joint_names))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         urdf = hand.export_urdf(Path(tmp) / "hand")
@@ -58,7 +62,10 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int) -> di
             print(f"scripted lift: {combination} done", file=sys.stderr, flush=True)
     total = sum(r["n_poses"] * r["trials"] for r in rows)
     wins = sum(r["succ"] * r["n_poses"] * r["trials"] for r in rows)
-    return {"grasps": str(grasps), "split": split, "force_fraction": cfg.specialists.scripted_force_fraction,
+    setting = ({"force_fraction": stage.scripted_force_fraction} if controller == "straight" else
+               {"force_fraction": stage.squeeze_force_fraction, "squeeze_action": stage.squeeze_action,
+                "squeeze_joints": list(stage.squeeze_joints)})
+    return {"grasps": str(grasps), "split": split, "controller": controller, **setting,
             "succ_all": round(wins / total, 4) if total else 0.0, "rows": rows}
 
 
@@ -67,6 +74,9 @@ def main(argv: list[str] | None = None) -> int:
     add_source_args(parser)
     parser.add_argument("--max-poses", type=int, default=30, help="accepted grasps per combination (default 30)")
     parser.add_argument("--trials", type=int, default=5, help="seeded perturbed trials per grasp (default 5, as the paper)")
+    parser.add_argument("--controller", choices=("straight", "squeeze"), default="straight",
+                        help="straight: the paper's w/o RL (specialists.scripted_force_fraction); squeeze: the "
+                        "squeeze-and-lift PPO starts from (specialists.squeeze_*)")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
     if args.max_poses < 1 or args.trials < 1:
@@ -75,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
-        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials)
+        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
+                   args.controller)
 
     return finish_tool(args.json, compute, row_report(
         lambda row: f"{row['combination']:24s} {row['n_poses']:4d} poses x {row['trials']} trials: success "

@@ -8,7 +8,9 @@ placement sector and object count (unseen combinations / geometries), else the l
 count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`).
 
 Writes ``<workdir>/results/execution.json`` ``{"rows": [{"setting", "succ", "n_poses", "trials"}]}`` and
-``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the scripted lift on the same poses) and,
+``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the scripted lift on the same poses),
+``Scripted squeeze-lift`` (not in the paper: the constant squeeze-and-lift controller that PPO starts from with
+``specialists.init_policy: squeeze_lift``, on the same poses, so a reader sees what PPO added) and,
 with ``--ablations``, ``w/o Goal``, ``w/o Spe-Pl``, ``w/o Spe-Com``, ``w/o Spe``: the specialists stage is run
 with the overrides of :data:`ABLATIONS` (its own cached units) and evaluated on Syn-Pl the same way;
 without the flag those rows have ``succ: null`` and say how to get them.  Both files, and a
@@ -29,6 +31,8 @@ from tasks.artifacts import atomic_write_json, atomic_write_text
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
 #: Paper (Table "execution", specialists, Syn rows) for comparison only.
 PAPER_SPECIALIST_SUCC = {"Syn-Pl": 0.6834}
+#: Ablation row of the scripted squeeze-and-lift (not in the paper; the PPO start of ``init_policy: squeeze_lift``).
+SQUEEZE_ROW = "Scripted squeeze-lift"
 #: The ablations that need differently trained specialists: config overrides of each (paper Table "ablations").
 ABLATIONS: dict[str, dict[str, Any]] = {
     "w/o Goal": {"lift.goal_observations": False},
@@ -72,6 +76,8 @@ class SplitResult:
     poses: int = 0
     scripted_wins: int = 0
     scripted_total: int = 0
+    squeeze_wins: int = 0
+    squeeze_total: int = 0
     unmatched: int = 0
     used: tuple[str, ...] = ()
     gifs: tuple[Path, ...] = ()
@@ -100,12 +106,14 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     from components.execution.ppo import load_actor
     from components.execution.records import save_records
     from tasks.preflight import cache_dir
-    from tasks.specialists import select_records
+    from components.hand import HandModel
+    from tasks.specialists import select_records, squeeze_lift
 
     stage = cfg.specialists
     index = json.loads(outputs["specialists"].path("index").read_text())
     groups: dict[str, list] = {}
     out = SplitResult()
+    squeeze = squeeze_lift(stage, HandModel(cfg.hand).actuated_joint_names) if scripted else None
     for record in select_records(outputs["synthesize"], stage, [split])[: stage.eval_poses]:
         match = matching_specialist(bin_label(record, stage.clustering), index)
         if match is None:
@@ -135,6 +143,9 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                                      seed=stage.eval_seed)
                 out.scripted_wins += sum(base.successes_per_pose)
                 out.scripted_total += base.n_poses * base.trials
+                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed)
+                out.squeeze_wins += sum(held.successes_per_pose)
+                out.squeeze_total += held.n_poses * held.trials
         finally:
             env.close()
     out.gifs = tuple(gif_paths)
@@ -163,6 +174,10 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
             ablation.append({"setting": "Ours", "succ": row["succ"], "n_poses": res.poses, "trials": stage.eval_trials})
             ablation.append({"setting": "w/o RL", "succ": res.rate(res.scripted_wins, res.scripted_total),
                              "n_poses": res.poses, "trials": stage.eval_trials})
+            ablation.append({"setting": SQUEEZE_ROW, "succ": res.rate(res.squeeze_wins, res.squeeze_total),
+                             "n_poses": res.poses, "trials": stage.eval_trials,
+                             "note": "not in the paper: the scripted squeeze-and-lift (specialists.squeeze_*), "
+                                     f"PPO's starting mean when specialists.init_policy=squeeze_lift (here: {stage.init_policy})"})
     for name, overrides in ABLATIONS.items():
         if not ablations:
             ablation.append({"setting": name, "succ": None, "n_poses": 0, "trials": stage.eval_trials,
@@ -227,7 +242,7 @@ def execution_markdown(rows: list[dict], ablation: list[dict], source: str) -> s
                      f"{_pct(PAPER_SPECIALIST_SUCC.get(r['setting']))} |")
     lines += ["", "| ablation (Syn-Pl) | succ | note |", "|---|---|---|"]
     for r in ablation:
-        lines.append(f"| {r['setting']} | {_pct(r['succ'])} | {r.get('missing', '')} |")
+        lines.append(f"| {r['setting']} | {_pct(r['succ'])} | {r.get('missing', r.get('note', ''))} |")
     if source != "accepted":
         lines += ["", f"records_source = {source}: plumbing check only, not a result."]
     return "\n".join(lines) + "\n"

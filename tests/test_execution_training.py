@@ -150,3 +150,33 @@ def test_evaluation_protocol_with_the_scripted_baseline(factory):
         assert len(seeds) == 500
     finally:
         env.close()
+
+
+def test_the_untrained_actor_starts_at_the_given_mean_action(factory):
+    from components.execution.ppo import build_actor_critic
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from components.execution.evaluation import scripted_action
+    from tasks.specialists import SpecialistsStageConfig, initial_action
+
+    env = factory()
+    try:
+        start = scripted_action(0.2, 0.9, [1, 2, 16])
+        assert start[[1, 2, 16]].tolist() == pytest.approx([0.9] * 3) and float(start[20]) == pytest.approx(0.2)
+        assert float(start.abs().sum()) == pytest.approx(2.9)
+        actor, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO), init_action=start)
+        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+            mean = actor(env.reset())["action"]
+        assert torch.allclose(mean, start, atol=0.03)  # the output layer's weights are scaled by 0.01
+        zero, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO))
+        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+            assert float(zero(env.reset())["action"].abs().max()) < 0.03
+        hand = env.world.hand
+        assert initial_action(SpecialistsStageConfig(init_policy="zero"), hand.actuated_joint_names) is None
+        squeeze = initial_action(SpecialistsStageConfig(), hand.actuated_joint_names)
+        names = hand.actuated_joint_names
+        assert float(squeeze[names.index("FFJ2")]) == pytest.approx(0.9) and float(squeeze[names.index("THJ4")]) == 0.0
+        with pytest.raises(MultigraspError, match="squeeze_joints: XXJ9 not among"):
+            initial_action(SpecialistsStageConfig(squeeze_joints=["FFJ2", "XXJ9"]), names)
+    finally:
+        env.close()

@@ -11,7 +11,7 @@ deterministic mode, the mean action) or :class:`ScriptedLift`, the paper's "w/o 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -27,15 +27,26 @@ FORCE_Z = N_JOINT_ACTIONS + 2
 
 
 class ScriptedLift:
-    """The "w/o RL" baseline: keep the pre-grasp joint targets and push the base straight up with
-    ``force_fraction`` of ``max_base_force_n`` (lift directly from the pre-grasp)."""
+    """A constant-action controller.  With the defaults, the "w/o RL" baseline of the paper: keep the pre-grasp
+    joint targets and push the base straight up with ``force_fraction`` of ``max_base_force_n`` (lift directly
+    from the pre-grasp).  With ``squeeze`` > 0 it also closes the actuated joints ``squeeze_joints`` (indices
+    into the 18 joint actions) by ``squeeze`` x ``joint_delta_rad`` per step while it lifts: the squeeze-and-lift
+    that :func:`scripted_action` gives PPO as its starting mean."""
 
-    def __init__(self, force_fraction: float = 0.5):
-        self.action = torch.zeros(N_ACTIONS)
-        self.action[FORCE_Z] = force_fraction
+    def __init__(self, force_fraction: float = 0.5, squeeze: float = 0.0, squeeze_joints: Sequence[int] = ()):
+        self.action = scripted_action(force_fraction, squeeze, squeeze_joints)
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         return td.set("action", self.action.clone())
+
+
+def scripted_action(force_fraction: float, squeeze: float = 0.0, squeeze_joints: Sequence[int] = ()) -> torch.Tensor:
+    """The (24,) action of :class:`ScriptedLift`: ``squeeze`` on the joint actions ``squeeze_joints``, ``force_fraction``
+    on the +z base force, zero elsewhere."""
+    action = torch.zeros(N_ACTIONS)
+    action[list(squeeze_joints)] = squeeze
+    action[FORCE_Z] = force_fraction
+    return action
 
 
 @dataclass

@@ -107,8 +107,11 @@ def _mlp(dim_in: int, dim_out: int, cfg: PPOConfig) -> MLP:
     return MLP(in_features=dim_in, out_features=dim_out, num_cells=list(cfg.hidden), activation_class=nn.Tanh)
 
 
-def build_actor_critic(env: EnvBase, cfg: PPOConfig) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm]:
-    """Actor (tanh-Gaussian over the action box) and critic, sharing one observation normaliser."""
+def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch.Tensor] = None
+                       ) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm]:
+    """Actor (tanh-Gaussian over the action box) and critic, sharing one observation normaliser.
+    ``init_action`` (act_dim,), inside the action box: the untrained actor's mean action (default: the box's
+    centre), e.g. a scripted controller's action so that PPO explores around it."""
     torch.manual_seed(cfg.seed)
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
@@ -117,6 +120,10 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig) -> tuple[ProbabilisticActor
     with torch.no_grad():  # NormalParamExtractor: scale = biased softplus(x); start near init_scale
         head[-1].weight.mul_(0.01)
         head[-1].bias.zero_()
+        if init_action is not None:
+            low, high = env.action_spec.space.low, env.action_spec.space.high
+            unit = (2.0 * (init_action.to(low) - low) / (high - low) - 1.0).clamp(-0.999, 0.999)
+            head[-1].bias[:act_dim] = torch.atanh(unit)  # TanhNormal's mean action is tanh(loc) in the box
     actor_net = nn.Sequential(norm, head, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}"))
     actor = ProbabilisticActor(
         TensorDictModule(actor_net, in_keys=["observation"], out_keys=["loc", "scale"]),
@@ -168,11 +175,12 @@ def _make_collector(env_factory: Callable[[], EnvBase], actor, cfg: PPOConfig, f
 
 
 def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Path,
-              progress: Optional[ProgressFn] = None) -> PPOResult:
+              progress: Optional[ProgressFn] = None, init_action: Optional[torch.Tensor] = None) -> PPOResult:
     """Train (or resume) a lift policy; see the module docstring.  ``env_factory`` must be picklable when
-    ``cfg.workers`` > 1 (it is called in each worker)."""
+    ``cfg.workers`` > 1 (it is called in each worker).  ``init_action``: the untrained actor's mean action
+    (:func:`build_actor_critic`; ignored on resume)."""
     probe = env_factory()
-    actor, critic, norm = build_actor_critic(probe, cfg)
+    actor, critic, norm = build_actor_critic(probe, cfg, init_action)
     probe.close()
     loss_module = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=cfg.clip_epsilon,
                               entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,
