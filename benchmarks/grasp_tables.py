@@ -109,6 +109,15 @@ def row_report(line: Callable[[dict], str]) -> Callable[[dict], None]:
     return report
 
 
+def check_positive(args: argparse.Namespace, *names: str) -> int | None:
+    """Exit status 2 after a one-line error when any of the options ``names`` (argparse dests) is below 1."""
+    if any(getattr(args, name) < 1 for name in names):
+        flags = " and ".join(f"--{name.replace('_', '-')}" for name in names)
+        print(f"error: {flags} must be at least 1", file=sys.stderr)
+        return 2
+    return None
+
+
 def finish_tool(out: Path, compute: Callable[[], dict], report: Callable[[dict], None]) -> int:
     """Run ``compute``; write its JSON-able result to ``out`` and summarise it with ``report`` (exit status 0),
     or print a :class:`MultigraspError` as one line on stderr (exit status 2)."""

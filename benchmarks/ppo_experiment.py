@@ -24,7 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.grasp_tables import finish_tool
+from benchmarks.grasp_tables import check_positive, finish_tool
 from components.errors import MultigraspError
 
 
@@ -115,9 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checkpoint", type=Path, help="PPO checkpoint file (kept; a rerun resumes); default: temporary")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    if args.iterations < 1 or args.eval_stride < 1:
-        print("error: --iterations and --eval-stride must be at least 1", file=sys.stderr)
-        return 2
+    if (status := check_positive(args, "iterations", "eval_stride")) is not None:
+        return status
 
     def compute() -> dict:
         cfg = load_config(args.profile, None, args.sets, **({"workdir": args.workdir} if args.workdir else {}))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, finish_tool, read_accepted, resolve_source, row_report
+from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, read_accepted, resolve_source, row_report
 
 
 def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight") -> dict:
@@ -79,9 +79,8 @@ def main(argv: list[str] | None = None) -> int:
                         "squeeze-and-lift PPO starts from (specialists.squeeze_*)")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    if args.max_poses < 1 or args.trials < 1:
-        print("error: --max-poses and --trials must be at least 1", file=sys.stderr)
-        return 2
+    if (status := check_positive(args, "max_poses", "trials")) is not None:
+        return status
 
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
