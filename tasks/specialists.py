@@ -74,7 +74,7 @@ class SpecialistsStageConfig(Section):
     squeeze_action: float = Field(
         0.9, gt=-1.0, lt=1.0,
         description="Squeeze-and-lift: joint action on squeeze_joints at every step (their targets close by this x "
-        "lift.joint_delta_rad per step until the joint limits).  On 60 of the bench singles, one trial each: "
+        "lift.joint_delta_rad per step until the joint limits).  On 60 of the bench singles, one trial each (a one-off probe): "
         "0.9 lifts 10/60, 1.0 11/60, 0.3 3/60 (with squeeze_force_fraction 0.2), against 1/60 for the straight lift.")
     squeeze_force_fraction: float = Field(
         0.2, gt=0.0, le=1.0,
@@ -84,8 +84,9 @@ class SpecialistsStageConfig(Section):
         "squeeze_lift",
         description="Mean action of the untrained PPO actor.  zero: stand still (PPO from scratch, the paper with 512 "
         "Isaac Gym envs for ~4 h); squeeze_lift: the scripted squeeze-and-lift above, so that PPO explores around "
-        "a controller that already lifts some pre-grasps.  On the bench singles with the bench PPO, zero gave 0-2 % "
-        "training success over 160 k frames; squeeze_lift 5-12 % from the first batch (README, 'Lifting').")
+        "a controller that already lifts some pre-grasps.  On 60 bench singles with the bench PPO, 120 k frames "
+        "(python -m benchmarks.ppo_experiment): zero 0/60 -> 1/60 lifted by the deterministic policy, squeeze_lift "
+        "5/60 -> 7/60 (README, 'Lifting the bench pre-grasps').")
 
 
 # --------------------------------------------------------------------------- records from the synthesis tables
