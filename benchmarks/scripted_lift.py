@@ -8,7 +8,8 @@ baseline (:class:`components.execution.evaluation.ScriptedLift`, the upward base
 (``specialists.squeeze_*``: close the flexion joints while pushing up more gently), in the lift env (``lift`` config) with the evaluation protocol of
 ``multigrasp evaluate execution`` (:func:`components.execution.evaluation.evaluate_lift`: ``--trials`` seeded
 perturbations of each pre-grasp, success = every object above ``lift.eval_success_height_m`` at the end), on the
-first ``--max-poses`` accepted grasps of every combination of a ``synthesize`` stage (found or given as in
+first ``--max-poses`` accepted grasps (optionally only those with ``--min-q1`` <= stored Q1 <= ``--max-q1``) of every
+combination of a ``synthesize`` stage (found or given as in
 :mod:`benchmarks.grasp_tables`).  It needs no trained policy: the point-cloud features are those of an untrained
 PointNet, which the scripted policy never reads.  It measures how liftable the pre-grasps are before any RL.
 Per combination: poses, trials, success rate, median and 90th percentile of the final lift of the lowest object.
@@ -24,10 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, read_accepted, resolve_source, row_report
+from components.errors import MultigraspError
 
 
-def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight") -> dict:
-    """The scripted lift on every combination's first ``max_poses`` accepted grasps (module docstring)."""
+def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight",
+        q1_range: tuple[float, float] = (-np.inf, np.inf)) -> dict:
+    """The scripted lift on every combination's first ``max_poses`` accepted grasps whose stored Q1 lies in
+    ``q1_range`` (inclusive; module docstring)."""
     from components.execution import LiftEnv
     from components.execution.evaluation import ScriptedLift, evaluate_lift
     from tasks.specialists import squeeze_lift
@@ -38,6 +42,12 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     from tasks.specialists import records_from_table
 
     frame = read_accepted(grasps, split, sys.maxsize)  # every accepted row; --max-poses caps each combination
+    if np.isfinite(q1_range).any():
+        if "q1" not in frame:
+            raise MultigraspError(f"{grasps} has no q1 column; --min-q1 / --max-q1 need a synthesize stage's table")
+        frame = frame[(frame["q1"] >= q1_range[0]) & (frame["q1"] <= q1_range[1])]
+        if not len(frame):
+            raise MultigraspError(f"no accepted grasps with Q1 in [{q1_range[0]}, {q1_range[1]}] in {grasps}")
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     # untrained, of the configured size: the scripted policy never reads the features (module docstring)
@@ -65,7 +75,10 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     setting = ({"force_fraction": stage.scripted_force_fraction} if controller == "straight" else
                {"force_fraction": stage.squeeze_force_fraction, "squeeze_action": stage.squeeze_action,
                 "squeeze_joints": list(stage.squeeze_joints)})
-    return {"grasps": str(grasps), "split": split, "controller": controller, **setting,
+    bounds = {k: float(v) for k, v in zip(("min_q1", "max_q1"), q1_range) if np.isfinite(v)}
+    return {"grasps": str(grasps), "split": split, "controller": controller, **setting, **bounds,
+            **({"q1_mean": round(float(frame.groupby("combination").head(max_poses)["q1"].mean()), 4)}
+               if "q1" in frame else {}),
             "succ_all": round(wins / total, 4) if total else 0.0, "rows": rows}
 
 
@@ -77,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller", choices=("straight", "squeeze"), default="straight",
                         help="straight: the paper's w/o RL (specialists.scripted_force_fraction); squeeze: the "
                         "squeeze-and-lift PPO starts from (specialists.squeeze_*)")
+    parser.add_argument("--min-q1", type=float, default=-np.inf, help="only grasps whose stored Q1 is at least this")
+    parser.add_argument("--max-q1", type=float, default=np.inf, help="only grasps whose stored Q1 is at most this")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
     if (status := check_positive(args, "max_poses", "trials")) is not None:
@@ -85,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
         return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
-                   args.controller)
+                   args.controller, (args.min_q1, args.max_q1))
 
     return finish_tool(args.json, compute, row_report(
         lambda row: f"{row['combination']:24s} {row['n_poses']:4d} poses x {row['trials']} trials: success "

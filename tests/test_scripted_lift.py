@@ -49,6 +49,26 @@ def test_a_hand_that_does_not_touch_the_object_lifts_nothing(hand, tmp_path, cap
     assert squeezed["controller"] == "squeeze" and squeezed["squeeze_action"] == 0.9 and squeezed["succ_all"] == 0.0
 
 
+def test_q1_bounds_select_grasps_and_an_empty_range_is_one_line(hand, tmp_path, capsys):
+    table = hand_above_sphere_table(hand, accepted=(True, True, True))
+    path = tmp_path / "grasps.parquet"
+    pq.write_table(table.append_column("q1", pa.array([0.0, 0.25, 0.4])), path)
+    out = tmp_path / "lift.json"
+    base = ["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
+            "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "1", "--json", str(out)]
+    assert main([*base, "--min-q1", "0.2", "--max-q1", "0.3"]) == 0
+    result = json.loads(out.read_text())
+    assert result["rows"][0]["n_poses"] == 1 and result["q1_mean"] == 0.25
+    assert result["min_q1"] == 0.2 and result["max_q1"] == 0.3
+    capsys.readouterr()
+    assert main([*base, "--min-q1", "0.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: no accepted grasps with Q1 in [0.5, inf]") and "\n" not in err
+    pq.write_table(hand_above_sphere_table(hand), path)  # no q1 column
+    assert main([*base, "--min-q1", "0.1"]) == 2
+    assert "no q1 column" in capsys.readouterr().err
+
+
 def test_bad_trials_and_missing_split_are_one_line(hand, tmp_path, capsys):
     assert main(["--trials", "0", "--json", str(tmp_path / "x.json")]) == 2
     assert capsys.readouterr().err.strip().startswith("error: --max-poses and --trials")
