@@ -9,7 +9,7 @@ evaluation counts is the deterministic policy.  This tool trains one PPO policy 
 bin (``specialists.ppo`` and ``specialists.init_policy`` of the config, ``lift`` for the env, 2 collector
 workers as the bench profile) and lifts the same fixed subset of the records, every ``--eval-stride``-th, with
 the deterministic policy before training (the untrained actor: ``init_policy``'s mean action) and after, one
-seeded trial each (:func:`components.execution.evaluation.trial_seed`, as ``evaluate execution``).  The hand
+seeded trial each (:func:`components.execution.evaluation.evaluate_lift`, the protocol of ``evaluate execution``).  The hand
 URDF is the ``hand.urdf`` beside the records (a specialists unit folder has both).  ``--checkpoint`` keeps the
 PPO checkpoint there, so a rerun resumes; by default it lives in a temporary folder.
 
@@ -28,22 +28,6 @@ from benchmarks.grasp_tables import check_positive, finish_tool
 from components.errors import MultigraspError
 
 
-def deterministic_success(env, policy, poses: list[int], seed: int) -> int:
-    """Successful trials of ``policy`` (deterministic mode), one seeded trial per pose index of ``env.records``."""
-    import torch
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-    from components.execution.evaluation import trial_seed
-
-    wins = 0
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for pose in poses:
-            env.set_next_record(pose, trial_seed(seed, pose, 0))
-            rollout = env.rollout(env.cfg.max_steps, policy=policy, break_when_any_done=True)
-            wins += int(bool(rollout[-1]["next", "success"]))
-    return wins
-
-
 def curve_blocks(history: list[dict], block: int = 10) -> list[dict]:
     """Means of the history's stochastic success, reward and final lift over blocks of ``block`` iterations (None
     where no episode ended in the block)."""
@@ -60,6 +44,7 @@ def curve_blocks(history: list[dict], block: int = 10) -> list[dict]:
 
 
 def run(cfg, records: Path, encoder: Path, iterations: int, stride: int, checkpoint: Path) -> dict:
+    from components.execution.evaluation import evaluate_lift
     from components.execution.factory import LiftEnvFactory
     from components.execution.ppo import build_actor_critic, train_ppo
     from components.hand import HandModel
@@ -81,7 +66,7 @@ def run(cfg, records: Path, encoder: Path, iterations: int, stride: int, checkpo
     try:
         poses = list(range(0, len(env.records), stride))
         start_actor, _, _ = build_actor_critic(env, ppo, init)
-        before = deterministic_success(env, start_actor, poses, stage.eval_seed)
+        before = sum(evaluate_lift(env, start_actor, trials=1, seed=stage.eval_seed, poses=poses).successes_per_pose)
         print(f"ppo experiment: untrained ({stage.init_policy}) {before}/{len(poses)}", file=sys.stderr, flush=True)
 
         def progress(iteration: int, total: int, info: dict) -> None:
@@ -90,7 +75,7 @@ def run(cfg, records: Path, encoder: Path, iterations: int, stride: int, checkpo
                   f"ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
 
         result = train_ppo(factory, ppo, checkpoint, progress, init_action=init)
-        after = deterministic_success(env, result.actor, poses, stage.eval_seed)
+        after = sum(evaluate_lift(env, result.actor, trials=1, seed=stage.eval_seed, poses=poses).successes_per_pose)
     finally:
         env.close()
     history = result.history

@@ -161,7 +161,8 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
     from components.hand import HandModel
 
     records_path = save_records(folder / "records.json", [record_from_dict(r) for r in records])
-    urdf = HandModel(hand_cfg).export_urdf(folder / "hand.urdf")
+    hand = HandModel(hand_cfg)
+    urdf = hand.export_urdf(folder / "hand.urdf")
     factory = LiftEnvFactory(hand_cfg=hand_cfg.model_dump(mode="json"), objects_cfg=objects.model_dump(mode="json"),
                              objects_cache=str(cache), urdf=str(urdf), records=str(records_path),
                              lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed)
@@ -171,7 +172,7 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
         print(f"specialists {unit} ({label}) iteration {iteration}/{total} reward {info['reward']:.3f}{success} "
               f"ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
 
-    init = initial_action(stage, HandModel(hand_cfg).actuated_joint_names)
+    init = initial_action(stage, hand.actuated_joint_names)
     result = train_ppo(factory, stage.ppo, folder / "policy.pt", progress, init_action=init)
     history = atomic_write_json(folder / "history.json", result.history)
     curve = plot_learning_curve(folder / "learning_curve.png", result.history, f"{label} ({len(records)} pre-grasps)")

@@ -145,6 +145,8 @@ def test_evaluation_protocol_with_the_scripted_baseline(factory):
         assert max(abs(x) for x in result.final_lifts) < 5e-3
         again = evaluate_lift(env, ScriptedLift(0.5), trials=2, seed=3)
         assert again.final_lifts == result.final_lifts  # seeded trials: repeatable
+        chosen = evaluate_lift(env, ScriptedLift(0.5), trials=2, seed=3, poses=[0])  # records by index
+        assert chosen.n_poses == 1 and chosen.final_lifts == result.final_lifts
         assert result.row("Syn-Pl") == {"setting": "Syn-Pl", "succ": 0.0, "n_poses": 1, "trials": 2}
         seeds = {trial_seed(3, pose, trial) for pose in range(100) for trial in range(5)}
         assert len(seeds) == 500

@@ -70,13 +70,17 @@ def trial_seed(seed: int, pose: int, trial: int) -> int:
 
 def evaluate_lift(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase], n_poses: Optional[int] = None,
                   trials: int = 5, seed: int = 0,
-                  on_rollout: Optional[Callable[[int, int, TensorDictBase], None]] = None) -> LiftEvaluation:
+                  on_rollout: Optional[Callable[[int, int, TensorDictBase], None]] = None,
+                  poses: Optional[Sequence[int]] = None) -> LiftEvaluation:
     """Run ``trials`` perturbed episodes from each of the first ``n_poses`` records of ``env`` (module
-    docstring).  ``on_rollout(pose, trial, rollout)`` sees every rollout (e.g. to keep a few for GIFs)."""
-    n = len(env.records) if n_poses is None else min(n_poses, len(env.records))
+    docstring), or from the records ``poses`` (indices into ``env.records``) when given.
+    ``on_rollout(pose, trial, rollout)`` sees every rollout (e.g. to keep a few for GIFs)."""
+    if poses is None:
+        poses = range(len(env.records) if n_poses is None else min(n_poses, len(env.records)))
+    n = len(poses)
     per_pose, lifts = [], []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for pose in range(n):
+        for pose in poses:
             wins = 0
             for trial in range(trials):
                 env.set_next_record(pose, trial_seed(seed, pose, trial))
