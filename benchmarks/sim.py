@@ -13,8 +13,9 @@ simulate the same motion.  Reported (medians over ``repeats``):
   (:meth:`LiftWorld.step_raw`), measured in the same run;
 * ``overhead_ratio`` = env_steps_per_s * substeps / raw_physics_steps_per_s (1 = the env costs nothing
   on top of the physics), the median over repeats of each env run paired with the bare run right after
-  it (``overhead_ratio_runs``): the development machine's speed drifts by up to 2x within minutes, and
-  a ratio of two separate medians mixes fast and slow periods (one run gave 0.89 that way).
+  it (``overhead_ratio_runs``; the pairs alternate their order, env first then bare first, so a steady drift
+  cancels): the development machine's speed drifts by up to 2x within minutes, and a ratio of two separate
+  medians mixes fast and slow periods (one run gave 0.89 that way).
 """
 
 from __future__ import annotations
@@ -82,12 +83,20 @@ def run_sim_benchmark(repeats: int = 5) -> dict:
         env, cfg = _make_env(tmp)
         _time_env(env, 10)  # warm-up
         env_rates, raw_rates = [], []
-        for _ in range(repeats):
-            env_rates.append(_time_env(env, STEPS))
+
+        def raw_rate() -> float:
             env.world.reset(env.records[0])
             start = time.perf_counter()
             env.world.step_raw(STEPS * cfg.substeps)
-            raw_rates.append(STEPS * cfg.substeps / (time.perf_counter() - start))
+            return STEPS * cfg.substeps / (time.perf_counter() - start)
+
+        for k in range(repeats):  # pairs in alternating order (env, raw), (raw, env), ...: cancels a linear drift
+            if k % 2 == 0:
+                env_rates.append(_time_env(env, STEPS))
+                raw_rates.append(raw_rate())
+            else:
+                raw_rates.append(raw_rate())
+                env_rates.append(_time_env(env, STEPS))
         env.close()
         ctx = mp.get_context("spawn")
         two = []

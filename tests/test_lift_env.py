@@ -126,7 +126,7 @@ def test_observation_blocks_hold_the_state_after_steps(env, record):
     for _ in range(3):
         td["action"] = push
         td = env.step(td)["next"]
-    state, goal = env.world.read(), env._goal
+    state, goal = env.world.read(), env.episode.goal
     obs = td["observation"]
     assert np.allclose(_block(obs, "joint_angles"), state.q, atol=1e-5)
     assert np.allclose(_block(obs, "joint_residues"), state.q - goal.q, atol=1e-5)

@@ -159,7 +159,7 @@ def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
 
 def lift_height(state: WorldState, start_heights: np.ndarray) -> float:
     """min_j (z_j - z_j(0)) (m): the lift of the lowest object."""
-    return float((state.obj_pos[:, 2] - start_heights).min())
+    return float(min(state.obj_pos[:, 2] - start_heights))  # builtin min: np.min costs ~5 us on 2 entries
 
 
 def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_heights: np.ndarray) -> dict[str, float]:
@@ -177,7 +177,7 @@ def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_height
     if cfg.goal_observations:
         pos_palm, _ = state.objects_in_palm
         terms["r_rot"] = -rotation_angle(goal.palm_rot, state.palm_rot)
-        terms["r_joint"] = -float(np.abs(state.q - goal.q).mean())
+        terms["r_joint"] = -float(np.abs(state.q - goal.q).sum()) / len(goal.q)  # np.mean's overhead ~5 us
         offset = pos_palm - goal.obj_pos_palm
         terms["r_object"] = -float(np.sqrt(np.einsum("ij,ij->i", offset, offset)).sum())
         reward += cfg.w_rotation * terms["r_rot"] + cfg.w_joint * terms["r_joint"] + cfg.w_object * terms["r_object"]

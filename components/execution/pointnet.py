@@ -164,10 +164,10 @@ class FusedPointNetEncoder:
         self.input_scale = encoder.input_scale
         self.feature_dim = encoder.feature_dim
 
-    @torch.inference_mode()
     def __call__(self, points: Tensor) -> Tensor:
         """points (B, N, 3) in the palm frame (m)  ->  features (B, feature_dim); the
-        :data:`components.execution.clouds.Encoder` interface."""
+        :data:`components.execution.clouds.Encoder` interface.  No grad mode needed: the weights are detached
+        copies, so nothing is recorded (the featurizer's own ``inference_mode`` covers the env's calls)."""
         _check_points(points)
         batch, n = points.shape[:2]
         h = points.reshape(batch * n, 3) / self.input_scale
