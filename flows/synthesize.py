@@ -38,13 +38,14 @@ def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None,
     """Unit specs of the shards and the scene records each synthesises.
 
     A shard's key covers the scene contents it reads (not the whole scenes manifest), the
-    synthesis / metrics / min_q1 / hand / objects config, ``run.seed`` and the component code.
+    synthesis optimizer (and its per-object-count overrides) / metrics / min_q1 / hand / objects config,
+    ``run.seed`` and the component code.
     """
     records = selected_scenes(cfg, scenes)
     size = cfg.synthesis.scenes_per_shard
     code = code_version(*SYNTHESIS_CODE_DIRS)
-    base = section_digest(cfg, "hand", "objects", "synthesis.optimizer", "synthesis.metrics", "synthesis.min_q1",
-                          "run.seed")
+    base = section_digest(cfg, "hand", "objects", "synthesis.optimizer", "synthesis.optimizer_by_object_count",
+                          "synthesis.metrics", "synthesis.min_q1", "run.seed")
     plan = []
     for number, start in enumerate(range(0, len(records), size)):
         chunk = records[start:start + size]

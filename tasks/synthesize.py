@@ -30,7 +30,7 @@ from typing import Any, Literal, Optional, Union
 
 import numpy as np
 from prefect import task
-from pydantic import Field, NonNegativeInt
+from pydantic import Field, NonNegativeInt, PositiveInt, ValidationError, model_validator
 
 from components.config_base import Section
 from components.execution.cameras import CameraConfig
@@ -59,6 +59,12 @@ class SynthesisStageConfig(Section):
                                        description="Multi-object DFC synthesis (energy, MALA, refinement, filter).")
     metrics: MetricsConfig = Field(default_factory=MetricsConfig,
                                    description="How Q1 and PN of the accepted grasps are measured.")
+    optimizer_by_object_count: dict[PositiveInt, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="Per number of objects in a scene, fields of ``optimizer`` to replace for such scenes, e.g. "
+        "{3: {w_pen: 1000, approach_steps: 800}}: the setting tuned for pairs leaves three small cylinders "
+        "interpenetrating (0/32 accepted, penetration median 12 mm) where a stronger w_pen / w_prior and longer "
+        "approach accept some (README 'Synthesis settings: what was measured'). Empty = one setting for all scenes.")
     min_q1: Optional[float] = Field(
         None, ge=0.0,
         description="Also reject (reason 'q1') a grasp that passes the optimiser's filter but whose Q1 (``metrics``) "
@@ -70,6 +76,24 @@ class SynthesisStageConfig(Section):
         0, description="At most this many scenes per (split, combination) from the scenes stage (0 = all): one "
         "number for every split, or a mapping split -> number, e.g. {train: 2, Pl: 1} (a split it does not name: "
         "all of its scenes).")
+
+    @model_validator(mode="after")
+    def _check_overrides(self) -> "SynthesisStageConfig":
+        for count in self.optimizer_by_object_count:
+            self.optimizer_for(count)
+        return self
+
+    def optimizer_for(self, n_objects: int) -> SynthesisConfig:
+        """``optimizer`` with the ``optimizer_by_object_count`` fields of scenes of ``n_objects`` objects."""
+        override = self.optimizer_by_object_count.get(n_objects)
+        if not override:
+            return self.optimizer
+        try:
+            return SynthesisConfig(**{**self.optimizer.model_dump(), **override})
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or '?'}: {e['msg']}" for e in exc.errors())
+            raise ValueError(f"optimizer_by_object_count[{n_objects}] is not a valid synthesis.optimizer override "
+                             f"({problems}); use fields of synthesis.optimizer (SynthesisConfig)") from None
 
     def scene_cap(self, split: str) -> int:
         """The ``max_scenes_per_combination`` of one split (0 = all)."""
@@ -172,7 +196,8 @@ def synthesize_shard(folder: Path, records: list[dict[str, Any]], stage: Synthes
         scene = Scene.from_dict(record["scene"])
         seed = scene_seed(base_seed, record["id"])
         t0 = time.perf_counter()
-        result = synthesize(hand, library, scene, stage.optimizer, torch.Generator().manual_seed(seed))
+        result = synthesize(hand, library, scene, stage.optimizer_for(len(scene.objects)),
+                            torch.Generator().manual_seed(seed))
         t1 = time.perf_counter()
         batch = int(result.accepted.shape[0])
         q1 = np.full(batch, np.nan)

@@ -302,3 +302,31 @@ def test_scene_cap_per_split():
     assert (mapping.scene_cap("train"), mapping.scene_cap("Pl"), mapping.scene_cap("Geo")) == (2, 1, 0)
     with pytest.raises(MultigraspError, match="max_scenes_per_combination"):
         load_config("smoke", None, ["synthesis.max_scenes_per_combination={trian: 2}"])
+
+
+def test_optimizer_by_object_count_overrides_only_scenes_of_that_count():
+    from components.errors import MultigraspError
+    from flows.config import load_config
+    from tasks.synthesize import SynthesisStageConfig
+
+    stage = SynthesisStageConfig(optimizer_by_object_count={3: {"w_pen": 1000.0, "contacts_per_object": 2}})
+    assert stage.optimizer_for(2) is stage.optimizer
+    three = stage.optimizer_for(3)
+    assert (three.w_pen, three.contacts_per_object) == (1000.0, 2)
+    assert three.batch_size == stage.optimizer.batch_size  # the rest is the base setting
+    with pytest.raises(MultigraspError, match="optimizer_by_object_count") as info:
+        load_config("smoke", None, ["synthesis.optimizer_by_object_count={3: {w_pne: 1000}}"])
+    assert "w_pne" in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(MultigraspError, match="optimizer_by_object_count"):
+        load_config("smoke", None, ["synthesis.optimizer_by_object_count={3: {w_pen: -1}}"])
+
+
+def test_stage_uses_the_override_for_scenes_of_that_count(stage_runs, stage_config):
+    import pandas as pd
+
+    workdir, _, _ = stage_runs
+    assert _run(workdir, stage_config, *ACCEPT_ALL, "synthesis.optimizer_by_object_count={2: {batch_size: 2}}") == 0
+    frame = pd.read_parquet(_merge_manifest(workdir).path("grasps"))
+    sizes = frame.groupby("scene_id").size()
+    pairs = frame.groupby("scene_id").object_names.first().map(len) == 2
+    assert set(sizes[pairs]) == {2} and set(sizes[~pairs]) == {BATCH}
