@@ -15,7 +15,11 @@ simulate the same motion.  Reported (medians over ``repeats``):
   on top of the physics), the median over repeats of each env run paired with the bare run right after
   it (``overhead_ratio_runs``; the pairs alternate their order, env first then bare first, so a steady drift
   cancels): the development machine's speed drifts by up to 2x within minutes, and a ratio of two separate
-  medians mixes fast and slow periods (one run gave 0.89 that way).
+  medians mixes fast and slow periods (one run gave 0.89 that way);
+* ``physics_share`` -- the fraction of the env loop's own wall time spent in its physics substeps (wrench +
+  ``stepSimulation``, :attr:`LiftWorld.physics_seconds`), median over repeats: measured on the same steps, so
+  no drift between two runs enters it.  It equals ``overhead_ratio`` when the physics runs as fast between
+  env work as in the bare loop (it can run slower: the env's Python evicts its caches).
 """
 
 from __future__ import annotations
@@ -57,16 +61,22 @@ def _make_env(cache_dir: str):
     return LiftEnv(hand, library, urdf, [record], cfg, encoder), cfg
 
 
-def _time_env(env, steps: int) -> float:
+def _time_env(env, steps: int, shares: list | None = None) -> float:
+    """Env steps per second over ``steps`` zero-action steps from a reset; appends to ``shares`` the fraction of
+    that time spent in the physics substeps (:attr:`LiftWorld.physics_seconds`)."""
     import torch
 
     zero = torch.zeros(env.action_spec.shape)
     td = env.reset()
+    physics = env.world.physics_seconds
     start = time.perf_counter()
     for _ in range(steps):
         td["action"] = zero
         td = env.step(td)["next"]
-    return steps / (time.perf_counter() - start)
+    elapsed = time.perf_counter() - start
+    if shares is not None:
+        shares.append((env.world.physics_seconds - physics) / elapsed)
+    return steps / elapsed
 
 
 def _worker(cache_dir: str, steps: int, barrier, out) -> None:
@@ -82,7 +92,7 @@ def run_sim_benchmark(repeats: int = 5) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         env, cfg = _make_env(tmp)
         _time_env(env, 10)  # warm-up
-        env_rates, raw_rates = [], []
+        env_rates, raw_rates, shares = [], [], []
 
         def raw_rate() -> float:
             env.world.reset(env.records[0])
@@ -92,11 +102,11 @@ def run_sim_benchmark(repeats: int = 5) -> dict:
 
         for k in range(repeats):  # pairs in alternating order (env, raw), (raw, env), ...: cancels a linear drift
             if k % 2 == 0:
-                env_rates.append(_time_env(env, STEPS))
+                env_rates.append(_time_env(env, STEPS, shares))
                 raw_rates.append(raw_rate())
             else:
                 raw_rates.append(raw_rate())
-                env_rates.append(_time_env(env, STEPS))
+                env_rates.append(_time_env(env, STEPS, shares))
         env.close()
         ctx = mp.get_context("spawn")
         two = []
@@ -114,7 +124,9 @@ def run_sim_benchmark(repeats: int = 5) -> dict:
     return {"env_steps_per_s": round(env_rate, 1), "env_steps_per_s_2workers": round(statistics.median(two), 1),
             "raw_physics_steps_per_s": round(raw_rate, 1), "substeps": cfg.substeps,
             "overhead_ratio": round(statistics.median(ratios), 3),
-            "overhead_ratio_runs": [round(x, 3) for x in ratios], "repeats": repeats,
+            "overhead_ratio_runs": [round(x, 3) for x in ratios],
+            "physics_share": round(statistics.median(shares), 3), "physics_share_runs": [round(x, 3) for x in shares],
+            "repeats": repeats,
             "workload": {"objects": list(BENCH_OBJECTS), "scene_seed": SEED, "steps": STEPS,
                          "physics_hz": cfg.physics_hz, "feature_period": cfg.feature_period,
                          "feature_dim": cfg.feature_dim, "actions": "zero"}}

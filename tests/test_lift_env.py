@@ -176,3 +176,17 @@ def test_trial_perturbations_are_seeded_small_and_keep_the_coupling(env, record)
     assert np.abs(starts[0].palm_pos - record.p).max() < 5 * env.cfg.trial_position_noise_m
     q = starts[2].q
     assert np.allclose(env.world.coupled(q), q, atol=1e-6)  # J0 follows J1, within limits
+
+
+def test_bench_sim_writes_rates_ratio_and_physics_share(tmp_path):
+    import json
+
+    from flows.cli import main
+
+    out = tmp_path / "sim.json"
+    assert main(["bench", "sim", "--repeats", "1", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    for key in ("env_steps_per_s", "env_steps_per_s_2workers", "raw_physics_steps_per_s"):
+        assert result[key] > 0
+    assert result["substeps"] == 6 and result["overhead_ratio"] > 0
+    assert 0.0 < result["physics_share"] < 1.0 and len(result["physics_share_runs"]) == 1

@@ -17,6 +17,7 @@ base force and torque in the world frame, times ``max_base_force_n`` / ``max_bas
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -133,6 +134,9 @@ class LiftWorld:
         self._object_names: tuple[str, ...] = ()
         self.targets = np.zeros(len(self.joint_index))  # (22,) current joint targets
         self.record: GraspRecord | None = None
+        #: Wall seconds spent in :meth:`step`'s physics substeps (wrench + ``stepSimulation``) since construction;
+        #: ``multigrasp bench sim`` divides its change by the env loop's time (``physics_share``).
+        self.physics_seconds = 0.0
 
     # ------------------------------------------------------------------ reset
     def set_palm_pose(self, p: np.ndarray, R: np.ndarray) -> None:
@@ -225,10 +229,12 @@ class LiftWorld:
         lift, lift_torque, base_com = self._weight_compensation()
         total_force = [float(force[0]) + lift[0], float(force[1]) + lift[1], float(force[2]) + lift[2]]
         total_torque = [float(torque[k]) + lift_torque[k] for k in range(3)]
+        start = time.perf_counter()
         for _ in range(self.cfg.substeps):
             pb.applyExternalForce(self.body, -1, total_force, base_com, pb.WORLD_FRAME, physicsClientId=c)
             pb.applyExternalTorque(self.body, -1, total_torque, pb.WORLD_FRAME, physicsClientId=c)
             pb.stepSimulation(physicsClientId=c)
+        self.physics_seconds += time.perf_counter() - start
         return self.read()
 
     def step_raw(self, n: int) -> None:
