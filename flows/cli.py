@@ -120,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split)",
                         description="Write an evaluation table to <workdir>/results/ (JSON + markdown) and log it "
                                     "to its own MLflow run. `pregrasp --source synthetic` measures the grasps of "
-                                    "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo, Syn-train-pairs).")
+                                    "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo: dual-object, as the paper; "
+                                    "Syn-train-pairs; Syn-Pl-singles, Syn-Geo-singles).")
     ev.add_argument("target", choices=["pregrasp", "execution"],
                     help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
     ev.add_argument("--source", choices=["synthetic", "generated"], default=None,

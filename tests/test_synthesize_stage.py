@@ -199,11 +199,13 @@ def test_evaluate_pregrasp_synthetic_writes_the_syn_rows(stage_runs, stage_confi
     workdir, _, _ = stage_runs
     assert main(["evaluate", "pregrasp", "--source", "synthetic", *_args(workdir, stage_config, ACCEPT_ALL)]) == 0
     rows = {r["setting"]: r for r in json.loads((workdir / "results" / "pregrasp_synthetic.json").read_text())["rows"]}
-    assert {"Syn-Pl", "Syn-Com", "Syn-Geo", "Syn-train-pairs"} <= set(rows)
+    assert {"Syn-Pl", "Syn-Com", "Syn-Geo", "Syn-train-pairs", "Syn-Pl-singles", "Syn-Geo-singles"} <= set(rows)
     assert rows["Syn-Pl"]["n"] == 0 and rows["Syn-Pl"]["q1"] is None  # no Pl scenes in this config
     assert rows["Syn-Com"]["n"] == BATCH and rows["Syn-Com"]["accept_rate"] == 1.0
     assert rows["Syn-train-pairs"]["n"] == 2 * BATCH and rows["Syn-train-pairs"]["div_deg"] > 0
-    assert rows["Syn-Geo"]["pn_mm"] >= 0
+    # Syn-* rows are dual-object as the paper's table: this config's Geo has one single (the user mesh), no pair
+    assert rows["Syn-Geo"]["n"] == 0 and rows["Syn-Geo-singles"]["n"] == BATCH
+    assert rows["Syn-Geo-singles"]["pn_mm"] >= 0
     table = (workdir / "results" / "pregrasp_synthetic.md").read_text()
     assert "| Syn-Com |" in table and "0.30 | 1.64 | 8.54" in table
 
