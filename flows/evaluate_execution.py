@@ -1,8 +1,8 @@
 """``multigrasp evaluate execution``: lift success of the specialists on the evaluation pre-grasps.
 
-Settings (paper §"Experiments"): ``Syn-Pl`` / ``Syn-Com`` / ``Syn-Geo`` = the synthesised pre-grasps of the
-``Pl`` / ``Com`` / ``Geo`` scene splits (same ``specialists.records_source`` rule as training), the first
-``specialists.eval_poses`` of each.  Each pre-grasp is lifted by its *matching specialist*: the one of its
+Settings (paper §"Experiments"): ``Syn-Pl`` / ``Syn-Com`` / ``Syn-Geo`` = the synthesised dual-object pre-grasps
+of the ``Pl`` / ``Com`` / ``Geo`` scene splits (same ``specialists.records_source`` rule as training; the splits'
+singles are left out, as the paper's table is about two objects), the first ``specialists.eval_poses`` of each.  Each pre-grasp is lifted by its *matching specialist*: the one of its
 own bin when it exists (unseen placements of seen combinations), else the largest specialist of the same
 placement sector and object count (unseen combinations / geometries), else the largest of the same object
 count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`).
@@ -29,6 +29,8 @@ from flows.config import PipelineConfig, with_overrides
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
+#: Objects per evaluated pre-grasp (the paper's execution table is dual-object grasping).
+EVALUATED_OBJECTS = 2
 #: Paper (Table "execution", specialists, Syn rows) for comparison only.
 PAPER_SPECIALIST_SUCC = {"Syn-Pl": 0.6834}
 #: Ablation row of the scripted squeeze-and-lift (not in the paper; the PPO start of ``init_policy: squeeze_lift``).
@@ -114,7 +116,9 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     groups: dict[str, list] = {}
     out = SplitResult()
     squeeze = squeeze_lift(stage, HandModel(cfg.hand).actuated_joint_names) if scripted else None
-    for record in select_records(outputs["synthesize"], stage, [split])[: stage.eval_poses]:
+    records = [r for r in select_records(outputs["synthesize"], stage, [split])
+               if len(r.scene.objects) == EVALUATED_OBJECTS]
+    for record in records[: stage.eval_poses]:
         match = matching_specialist(bin_label(record, stage.clustering), index)
         if match is None:
             out.unmatched += 1
