@@ -6,7 +6,7 @@
 Every shard table keeps each candidate's filter terms (``term_fc_per_object``, ``term_contact_distance_max``,
 ``term_contact_distance_per_object``, ``term_penetration_depth_max``, ``term_prior``).  This tool applies
 :func:`components.synthesis.filtering.filter_grasps` to them with the profile's ``synthesis.optimizer`` plus the
-``--filter`` overrides, scores the rows that only the new filter accepts with the stage's metrics (Q1 / PN, as
+``--filter`` overrides (and, for scenes of n objects, the ``synthesis.optimizer_by_object_count`` fields of n), scores the rows that only the new filter accepts with the stage's metrics (Q1 / PN, as
 the shards score theirs; ``--max-new`` caps that cost, ~0.6 s a grasp) and summarises, per singles / pairs / more
 as :mod:`benchmarks.synthesis_progress` does, the stored filter, the new one and the newly accepted rows
 alone (``newly_accepted``).  Rows the new filter rejects keep their
@@ -33,9 +33,10 @@ ROW_COLUMNS = ["scene_id", "combination", "object_names", "object_positions", "o
                "accepted", "reason", "q1", "pn_mm"]
 
 
-def refiltered(frame, optimizer) -> tuple[np.ndarray, list[str]]:
-    """(accepted (N,), reasons) of ``frame``'s rows under ``optimizer``'s filter, from the stored terms; rows
-    are filtered per object count (the per-object terms have one entry per object)."""
+def refiltered(frame, optimizer_for) -> tuple[np.ndarray, list[str]]:
+    """(accepted (N,), reasons) of ``frame``'s rows from the stored terms, the rows of n objects under the filter
+    of ``optimizer_for(n)`` (``SynthesisStageConfig.optimizer_for``: the stage's per-object-count settings);
+    rows are filtered per object count (the per-object terms have one entry per object)."""
     import torch
 
     from components.synthesis.filtering import filter_grasps
@@ -47,7 +48,7 @@ def refiltered(frame, optimizer) -> tuple[np.ndarray, list[str]]:
         part = frame.iloc[rows]
         terms = {key: torch.as_tensor(np.stack(part[column].to_numpy()).astype(np.float64))
                  for key, column in TERM_COLUMNS.items()}
-        ok, why = filter_grasps(terms, optimizer)
+        ok, why = filter_grasps(terms, optimizer_for(int(count)))
         accepted[rows] = ok.numpy()
         for row, reason in zip(rows, why):
             reasons[row] = reason
@@ -65,7 +66,7 @@ def run(stage_dir: Path, cfg, max_new: int) -> dict:
     tables = shard_tables(stage_dir)
     frame = pd.concat([pd.read_parquet(p, columns=ROW_COLUMNS + list(TERM_COLUMNS.values())) for p in tables],
                       ignore_index=True)
-    accepted, reasons = refiltered(frame, cfg.synthesis.optimizer)
+    accepted, reasons = refiltered(frame, cfg.synthesis.optimizer_for)
     new = frame[accepted & ~frame["accepted"].to_numpy()]
     if len(new) > max_new:
         raise MultigraspError(f"the new filter accepts {len(new)} rows the stage rejected; scoring them takes "

@@ -37,18 +37,21 @@ def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None,
                ) -> list[tuple[UnitSpec, list[dict[str, Any]]]]:
     """Unit specs of the shards and the scene records each synthesises.
 
-    A shard's key covers the scene contents it reads (not the whole scenes manifest), the
-    synthesis optimizer (and its per-object-count overrides) / metrics / min_q1 / hand / objects config,
+    A shard's key covers the scene contents it reads (not the whole scenes manifest), the optimiser setting its
+    scenes use (``synthesis.optimizer`` with the ``optimizer_by_object_count`` fields of their object counts, so
+    editing the 3-object setting leaves the pair shards cached), the metrics / min_q1 / hand / objects config,
     ``run.seed`` and the component code.
     """
     records = selected_scenes(cfg, scenes)
     size = cfg.synthesis.scenes_per_shard
     code = code_version(*SYNTHESIS_CODE_DIRS)
-    base = section_digest(cfg, "hand", "objects", "synthesis.optimizer", "synthesis.optimizer_by_object_count",
-                          "synthesis.metrics", "synthesis.min_q1", "run.seed")
     plan = []
     for number, start in enumerate(range(0, len(records), size)):
         chunk = records[start:start + size]
+        optimizers = {n: cfg.synthesis.optimizer_for(n).model_dump(mode="json")
+                      for n in sorted({len(r["objects"]) for r in chunk})}
+        base = section_digest(cfg, "hand", "objects", "synthesis.metrics", "synthesis.min_q1", "run.seed",
+                              extra=optimizers)
         spec = make_spec(stage=STAGE, unit=f"shard-{number:03d}", section_digest=base,
                          upstream={"scenes": digest(chunk)[:20]}, code=code, workdir=cfg.run.workdir,
                          run_id=run_id, tracking_uri=tracking_uri)

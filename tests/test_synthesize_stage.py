@@ -327,6 +327,9 @@ def test_stage_uses_the_override_for_scenes_of_that_count(stage_runs, stage_conf
     import pandas as pd
 
     workdir, _, _ = stage_runs
+    before = executions(workdir)
+    assert _run(workdir, stage_config, *ACCEPT_ALL, "synthesis.optimizer_by_object_count={3: {w_pen: 500}}") == 0
+    assert executions(workdir) == before  # no 3-object scene here: every shard (and the merge) served from cache
     assert _run(workdir, stage_config, *ACCEPT_ALL, "synthesis.optimizer_by_object_count={2: {batch_size: 2}}") == 0
     frame = pd.read_parquet(_merge_manifest(workdir).path("grasps"))
     sizes = frame.groupby("scene_id").size()

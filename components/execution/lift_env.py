@@ -52,7 +52,6 @@ class Episode:
     last_action: np.ndarray = field(default_factory=lambda: np.zeros(N_ACTIONS))  # (24,) clipped
     features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.float32))  # (1 + n_obj, F)
     t: int = 0  # steps since reset
-    terms: dict = field(default_factory=dict)  # reward terms of the last step
 
 
 class LiftEnv(EnvBase):
@@ -140,7 +139,6 @@ class LiftEnv(EnvBase):
         ep.start_heights = state.obj_pos[:, 2].copy()
         ep.last_action = np.zeros(N_ACTIONS)
         ep.t = 0
-        ep.terms = {}
         self._update_features(state)
         out = self._output(state, 0.0)
         del out["reward"]
@@ -155,7 +153,6 @@ class LiftEnv(EnvBase):
         if ep.t % self.cfg.feature_period == 0:
             self._update_features(state)
         terms = reward_terms(self.cfg, state, ep.goal, ep.start_heights)
-        ep.terms = terms
         terminated = bool((state.obj_pos[:, 2] < self.cfg.fall_height_m).any())
         truncated = ep.t >= self.cfg.max_steps
         return TensorDict(self._output(state, terms["lift"], terms["reward"], terminated, truncated),

@@ -115,9 +115,8 @@ class LiftWorld:
         self.tip_joints = [next(j for n, j in names.items() if n.startswith(f) and n.endswith("distal")) for f in FINGERTIPS]
         for j in self.tip_joints:
             pb.enableJointForceTorqueSensor(self.body, j, True, physicsClientId=c)
-        # rows of the tip joints among the 22 joints: read() then gets both from one getJointStates call
-        self._tip_rows = ([self.joint_index.index(j) for j in self.tip_joints]
-                          if set(self.tip_joints) <= set(self.joint_index) else None)
+        # rows of the tip joints (FFJ0 ... THJ0, among the 22) in joint_index: read() gets both from one call
+        self._tip_rows = [self.joint_index.index(j) for j in self.tip_joints]
         index = {n: i for i, n in enumerate(hand.joint_names)}
         self._actuated = np.array([index[n] for n in hand.actuated_joint_names])  # (18,) positions in the 22
         couplings = list(hand.spec.couplings)  # J0 = clamp(offset + ratio * J1) (numpy copy of the FK's coupling)
@@ -258,10 +257,7 @@ class LiftWorld:
         c = self.client
         joints = pb.getJointStates(self.body, self.joint_index, physicsClientId=c)
         q, dq, tau = np.array([(s[0], s[1], s[3]) for s in joints]).T
-        if self._tip_rows is None:
-            tip_wrench = np.array([s[2] for s in pb.getJointStates(self.body, self.tip_joints, physicsClientId=c)])
-        else:
-            tip_wrench = np.array([joints[k][2] for k in self._tip_rows])  # (5, 6)
+        tip_wrench = np.array([joints[k][2] for k in self._tip_rows])  # (5, 6)
         p, R = self.palm_pose()
         lin, ang = pb.getBaseVelocity(self.body, physicsClientId=c)
         poses = [pb.getBasePositionAndOrientation(body, physicsClientId=c) for body in self.objects]
