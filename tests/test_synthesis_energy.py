@@ -24,7 +24,8 @@ from components.synthesis import (
     table_penetration,
     unpack,
 )
-from components.synthesis.energy import hand_points_object_distances, object_points_hand_distances
+from components.synthesis.energy import (hand_points_object_distances, near_normals, object_points_hand_distances,
+                                         surround_energy)
 from components.synthesis.initializations import palm_centre_local
 
 DTYPE = torch.float64
@@ -307,3 +308,46 @@ def test_excess_and_alignment_weights_enter_the_total(hand, library):
     base, _ = energy(plain, x, contacts)
     assert torch.all(terms["excess"] > 0)  # the initial poses hover centimetres away
     assert torch.allclose(total - base, 2.0 * terms["excess"], rtol=1e-5)
+
+
+def test_surround_energy_is_zero_for_pushes_from_around_and_a_quarter_for_one_push():
+    centre, radius = torch.zeros(1, 3, dtype=DTYPE), torch.tensor([0.02], dtype=DTYPE)
+    axes = torch.eye(3, dtype=DTYPE)
+    normals = torch.cat([axes, -axes]).reshape(1, 6, 1, 3)  # outward normals of the six face centres of a ball
+    points = 0.02 * normals.squeeze(2)  # on the surface
+    zero = torch.zeros(1, 6, 1, dtype=DTYPE)
+    around = surround_energy(points, zero, normals, centre, radius, band=0.005)
+    assert float(around) == pytest.approx(0.0, abs=1e-12)
+    one_side = surround_energy(points[:, :1], zero[:, :1], normals[:, :1], centre, radius, band=0.005)
+    assert float(one_side) == pytest.approx(0.25)  # |u|^2 / (1 + 1)^2, no torque through the centre
+    # a sample 2.5 mm off weighs half; one 5 mm off or more weighs nothing
+    half = surround_energy(points[:, :1] * 1.125, zero[:, :1] + 0.0025, normals[:, :1], centre, radius, band=0.005)
+    assert float(half) == pytest.approx(0.25 / 2.25)  # (0.5)^2 / (1.5)^2
+    far = surround_energy(points[:, :1] * 1.5, zero[:, :1] + 0.01, normals[:, :1], centre, radius, band=0.005)
+    assert float(far) == 0.0
+
+
+def test_surround_weight_enters_the_total_with_the_dense_gradient(hand, library):
+    p0, R0, q0, objects = finger_in_sphere_pose(hand, library, overlap=-0.002)  # a finger 2 mm off the sphere
+    cfg = SynthesisConfig(batch_size=1, w_surround=3.0, surround_band_m=0.005)
+    problem = GraspProblem.build(hand, objects, cfg)
+    contacts = torch.tensor([[[0, 50, 100]]])
+    total, terms = energy(problem, pack(p0, R0, q0), contacts)
+    without, _ = energy(problem, pack(p0, R0, q0), contacts, w_surround=0.0)
+    assert float(terms["surround"][0]) > 0.0  # the finger touches from one side
+    assert torch.allclose(total - without, 3.0 * terms["surround"], rtol=1e-9)
+    x0 = pack(p0, R0, q0)
+
+    def value_and_grad(distances_fn) -> tuple:
+        x = x0.clone().requires_grad_(True)
+        p, R, q = unpack(x)
+        points = problem.hand_surface.world(hand, p, R, q)
+        d = distances_fn(points)
+        n = near_normals(objects, points.detach(), d.detach(), 0.005)
+        value = surround_energy(points, d, n, objects.positions, problem.lever_lengths, 0.005).sum()
+        return float(value.detach()), torch.autograd.grad(value, x)[0]
+
+    v_culled, g_culled = value_and_grad(lambda pts: hand_points_object_distances(objects, pts, 0.005))
+    v_dense, g_dense = value_and_grad(objects.sdf)
+    assert v_culled == pytest.approx(v_dense, rel=1e-12) and g_culled.abs().sum() > 0
+    assert torch.allclose(g_culled, g_dense, rtol=1e-9, atol=1e-12)

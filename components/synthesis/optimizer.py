@@ -267,7 +267,7 @@ def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,
              progress: Optional[ProgressFn] = None) -> tuple[Tensor, Tensor, dict]:
     """Approach stage (``approach_steps`` > 0), run before MALA: Adam (lr ``approach_lr``) on
 
-        E_approach = w_dist E_dist + w_pen E_pen + w_prior E_prior      (w_fc = w_align = 0),
+        E_approach = w_dist E_dist + w_pen E_pen + w_prior E_prior      (w_fc = w_surround = 0, w_align = approach_w_align),
 
     with the contacts reassigned every ``approach_reassign_every`` steps by
     :func:`~components.synthesis.energy.best_contacts` scored by distance (and alignment) only, so each
@@ -285,7 +285,7 @@ def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,
     for t in range(cfg.approach_steps):
         if every > 0 and t % every == 0:
             contacts = reassign_contacts(problem, x.detach(), contacts, **weights)
-        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, **weights)
+        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, w_surround=0.0, **weights)
         contacts = terms[CONTACT_INDICES]
         optimizer.zero_grad()
         x.grad = grad
