@@ -31,10 +31,20 @@ def _quantiles(values) -> list[float]:
     return [round(float(v), 4) for v in np.quantile(values.detach().cpu().numpy(), QUANTILES)]
 
 
+def effective_optimizer(synthesis, n_objects: int, sets: list[str]):
+    """The stage's optimiser for ``n_objects`` objects (``synthesis.optimizer_for``) with the fields named in
+    ``sets`` (already applied to ``synthesis.optimizer``) taking their ``--set`` values over the per-count ones."""
+    explicit = {item.split("=", 1)[0].strip() for item in sets}
+    return synthesis.optimizer_for(n_objects).model_copy(
+        update={key: getattr(synthesis.optimizer, key) for key in explicit})
+
+
 def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str = "bench", device: str = "cpu",
                    threads: int = 0, scene_sets: tuple[str, ...] = ()) -> dict:
-    """Synthesise one scene with the profile's optimiser plus the ``KEY=VALUE`` overrides ``sets`` (keys of
-    ``SynthesisConfig``, validated by the pipeline's ``--set`` machinery); returns the JSON-able summary."""
+    """Synthesise one scene with the profile's optimiser for that many objects (``optimizer_for``: the
+    ``optimizer_by_object_count`` fields over ``optimizer``, as the stage does) plus the ``KEY=VALUE`` overrides
+    ``sets`` (keys of ``SynthesisConfig``, validated by the pipeline's ``--set`` machinery; they win over the
+    per-count fields); returns the JSON-able summary."""
     import torch
 
     from benchmarks.synthesis import accepted_quality
@@ -47,7 +57,7 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
         torch.set_num_threads(threads)
     config = load_config(profile, sets=[f"synthesis.optimizer.{item}" for item in sets]
                          + [f"scenes.sampling.{item}" for item in scene_sets])
-    cfg = config.synthesis.optimizer
+    cfg = effective_optimizer(config.synthesis, len(objects), sets)
     hand = HandModel(HandConfig(), device=device)
     with tempfile.TemporaryDirectory() as tmp:
         library = ObjectLibrary(ObjectsConfig(), cache_dir=Path(tmp))

@@ -24,3 +24,15 @@ def test_bad_override_is_one_line(tmp_path, capsys):
     assert main(["--set", "mala_steps=-1", "--json", str(tmp_path / "x.jsonl")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: bad value for 'synthesis.optimizer.mala_steps'") and "\n" not in err
+
+
+def test_the_experiment_uses_the_stage_setting_for_its_object_count_and_set_fields_win():
+    from benchmarks.synthesis_experiment import effective_optimizer
+    from flows.config import load_config
+
+    sets = ["batch_size=16", "w_fc=7"]
+    synthesis = load_config("bench", sets=[f"synthesis.optimizer.{item}" for item in sets]).synthesis
+    pair, four = effective_optimizer(synthesis, 2, sets), effective_optimizer(synthesis, 4, sets)
+    assert pair.contacts_per_object == 3 and four.contacts_per_object == 2  # bench: 2 contacts per object for four
+    assert four.w_pen == synthesis.optimizer_by_object_count[4]["w_pen"] != pair.w_pen
+    assert pair.w_fc == four.w_fc == 7 and pair.batch_size == four.batch_size == 16
