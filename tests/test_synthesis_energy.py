@@ -212,6 +212,17 @@ def test_friction_lets_a_pinch_plus_a_third_face_contact_balance():
     assert float(tangential.norm(dim=-1).max()) <= 0.5 + 1e-12  # inside the Coulomb cones
     tight = friction_tilted_forces(normals, 0.1)
     assert float((tight - normals).norm(dim=-1).max()) == pytest.approx(0.1, rel=1e-9)  # clamped to mu
+    # more steps hand the residual on: 1/3^k after k steps (each side contact takes 1/3 of it, within mu = 0.5)
+    for k in (2, 4):
+        error = force_closure_error(points, normals, centre, radius, margin=0.0, friction=0.5, friction_iterations=k)
+        assert float(error[0]) == pytest.approx((1.0 / 3.0) ** (2 * k), rel=1e-9)
+        forces = friction_tilted_forces(normals, 0.5, k)
+        tangential = forces - (forces * normals).sum(-1, keepdim=True) * normals
+        assert float(tangential.norm(dim=-1).max()) <= 0.5 + 1e-12
+    # two contacts at 90 degrees cannot balance within cones of 0.5: the tilt stops at the cone edges
+    square = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]], dtype=DTYPE)
+    residual = friction_tilted_forces(square, 0.5, 20).sum(1)
+    assert float((residual * residual).sum()) == pytest.approx(0.5, rel=1e-6)
 
 
 def test_contact_alignment_is_zero_for_opposed_normals_and_two_for_equal_ones():

@@ -45,22 +45,27 @@ NON_TERM_KEYS = (CANDIDATE_POINTS, CONTACT_INDICES)
 
 
 # ============================================================================ the energy's terms
-def friction_tilted_forces(normals: Tensor, friction: float) -> Tensor:
-    """Unit contact forces tilted inside their friction cones to cancel the net force (one projection step):
+def friction_tilted_forces(normals: Tensor, friction: float, iterations: int = 1) -> Tensor:
+    """Unit contact forces tilted inside their friction cones to cancel the net force, ``iterations`` projection
+    steps from f_i = n_i:
 
-        r = sum_i n_i,   t_i = -(I - n_i n_i^T) r / C,   t_i <- t_i * min(1, mu / |t_i|),   f_i = n_i + t_i,
+        r = sum_i f_i,   T_i <- T_i - (I - n_i n_i^T) r / C,   T_i <- T_i * min(1, mu / |T_i|),   f_i = n_i + T_i,
 
-    i.e. each contact takes its share of the residual force along its tangent plane, at most mu times its
-    normal force (Coulomb).  mu = 0 returns the normals (the official frictionless E_fc).
+    i.e. each contact takes its share of the residual force along its tangent plane, its tangential part T_i
+    at most mu times its (unit) normal force (Coulomb).  One step is the default; more steps hand on what a
+    clamped contact could not take (three contacts +x, -x, +z of a box: residual 1/3 after one step, 1/3^k
+    after k).  mu = 0 returns the normals (the official frictionless E_fc).
     normals (B, C, 3) -> forces (B, C, 3)."""
     if friction <= 0.0:
         return normals
-    residual = normals.sum(dim=1, keepdim=True)  # (B, 1, 3)
-    normal_part = (residual * normals).sum(-1, keepdim=True) * normals  # (B, C, 3)
-    tangent = -(residual - normal_part) / normals.shape[1]
-    norm = tangent.norm(dim=-1, keepdim=True)
-    scale = torch.clamp(friction / norm.clamp_min(1e-12), max=1.0)
-    return normals + tangent * scale
+    tangential = torch.zeros_like(normals)
+    for _ in range(iterations):
+        residual = (normals + tangential).sum(dim=1, keepdim=True)  # (B, 1, 3)
+        normal_part = (residual * normals).sum(-1, keepdim=True) * normals  # (B, C, 3)
+        tangential = tangential - (residual - normal_part) / normals.shape[1]
+        norm = tangential.norm(dim=-1, keepdim=True)
+        tangential = tangential * torch.clamp(friction / norm.clamp_min(1e-12), max=1.0)
+    return normals + tangential
 
 
 def contact_gate_weights(signed_distance: Tensor, scale: float) -> Tensor:
@@ -81,7 +86,7 @@ def contact_gate_weights(signed_distance: Tensor, scale: float) -> Tensor:
 
 
 def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length: Tensor, margin: float,
-                        friction: float = 0.0, weights: Optional[Tensor] = None) -> Tensor:
+                        friction: float = 0.0, weights: Optional[Tensor] = None, friction_iterations: int = 1) -> Tensor:
     """Force-closure error of one object (paper Eq. multi-dfc-energy, E_FC; DFC, Liu et al. 2021, Eq. 8b):
 
         E_fc = relu(|G f|^2 - margin),   G = [ I_3  ...  I_3 ; [x_1]x ... [x_C]x ]  (6 x 3C),
@@ -94,11 +99,11 @@ def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length:
     the forces balance in force and torque (up to ``margin``).  Without friction three contacts on a
     box's faces can never balance (three axis-aligned unit vectors never sum to zero); with mu = 0.5 a
     pinch plus a third face contact does.  ``weights`` (B, C) (:func:`contact_gate_weights`) scale the
-    forces f_i <- w_i f_i after the friction tilt.
+    forces f_i <- w_i f_i after the friction tilt; ``friction_iterations`` is the tilt's number of steps.
     points, normals (B, C, 3), centre (3,), length () -> (B,).
     """
     lever = (points - centre) / length  # (B, C, 3)
-    forces = friction_tilted_forces(normals, friction)
+    forces = friction_tilted_forces(normals, friction, friction_iterations)
     if weights is not None:
         forces = forces * weights.unsqueeze(-1)
     force = forces.sum(dim=1)  # (B, 3)
@@ -315,7 +320,7 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
         d, n = objects.object_sdf_and_normal(j, pts)
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         e = (w_fc * force_closure_error(pts, n, objects.positions[j], problem.lever_lengths[j], cfg.fc_margin,
-                                        cfg.fc_friction, gate)
+                                        cfg.fc_friction, gate, cfg.fc_friction_iterations)
              + w_dist * contact_distance_energy(d) + w_align * contact_alignment_energy(nrm, n)
              + cfg.w_contact_excess * contact_excess_energy(d, cfg.contact_excess_m))
         return e.reshape(batch, n_sets)
@@ -514,7 +519,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
         fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
-                                      cfg.fc_margin, cfg.fc_friction, gate))
+                                      cfg.fc_margin, cfg.fc_friction, gate, cfg.fc_friction_iterations))
         dist.append(contact_distance_energy(d))
         excess.append(contact_excess_energy(d, cfg.contact_excess_m))
         align.append(contact_alignment_energy(contact_normals[:, j], n))
