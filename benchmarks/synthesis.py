@@ -52,10 +52,11 @@ def bench_optimizer(cfg, steps_scale: float):
                                   "progress_every": max(1, min(PROGRESS_EVERY, mala_steps // 4))})  # >= 3 intervals
 
 
-def accepted_quality(hand, library, scene, result, metrics) -> dict:
+def accepted_quality(hand, library, scene, result, metrics, group: bool = False) -> dict:
     """Mean Q1, mean PN (mm) and Div (deg) of the first :data:`QUALITY_MAX` accepted grasps of a
     :class:`~components.synthesis.SynthesisResult` (``None`` each when none is accepted; Div needs two),
-    and ``quality_n``, how many were scored."""
+    and ``quality_n``, how many were scored.  ``q1`` is always the min over objects (the hand alone); with
+    ``group`` (``fc_mode='group'``) ``q1_group`` is the objects-as-one-body Q1 too."""
     from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
     from components.synthesis import SceneObjects
 
@@ -64,7 +65,9 @@ def accepted_quality(hand, library, scene, result, metrics) -> dict:
         return {"q1": None, "pn_mm": None, "div_deg": None, "quality_n": 0}
     objects = SceneObjects(library, scene, hand.device, hand.dtype)
     p, R, q = result.p[index], result.R[index], result.q[index]
-    return {"q1": round(float(q1_grasps(hand, objects, p, R, q, metrics)[0].mean()), 4),
+    measured, per_object = q1_grasps(hand, objects, p, R, q, metrics, group=group)
+    extra = {"q1_group": round(float(measured.mean()), 4)} if group else {}
+    return {"q1": round(float(per_object.amin(-1).mean()), 4), **extra,
             "pn_mm": round(float(penetration_depth(hand, objects, p, R, q, metrics).pn_mm.mean()), 3),
             "div_deg": round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None,
             "quality_n": len(index)}

@@ -77,7 +77,8 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
                    "fc_max": _quantiles(terms["fc_per_object"].amax(-1)),
                    "penetration_mm": _quantiles(terms["penetration_depth_max"] * 1000.0),
                    "quantiles": list(QUANTILES),
-                   **accepted_quality(hand, library, scene, result, config.synthesis.metrics)}
+                   **accepted_quality(hand, library, scene, result, config.synthesis.metrics,
+                                      group=cfg.fc_mode == "group")}
     return summary
 
 

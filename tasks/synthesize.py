@@ -15,7 +15,8 @@ Parquet layout (one row per candidate): ``scene_id``, ``split``, ``combination``
 ``object_positions`` (n_obj x 3, flattened), ``object_quats_xyzw`` (n_obj x 4, flattened), then
 every array of :meth:`SynthesisResult.to_numpy` under its own name (``p``, ``R``, ``q``,
 ``contact_regions``, ``energy``, ``term_*``, …; ``reasons`` becomes ``reason``), and ``q1``,
-``pn_mm``.  Arrays with more than one axis per row are stored flattened in C order as list
+``pn_mm``, ``q1_objects`` (min over objects of the per-object Q1) and ``q1_group`` (true where ``q1`` is the
+group Q1 of ``fc_mode='group'``; then ``q1_objects`` is what the hand alone holds).  Arrays with more than one axis per row are stored flattened in C order as list
 columns: ``R`` is 3 x 3, per-object arrays are ``n_obj x …`` with ``n_obj = len(object_names)``.
 """
 
@@ -120,8 +121,11 @@ def combination_name(objects: list[str] | tuple[str, ...]) -> str:
 
 
 def _row_columns(record: dict[str, Any], arrays: dict[str, np.ndarray], seed: int, q1: np.ndarray,
-                 pn_mm: np.ndarray) -> dict[str, list | np.ndarray]:
-    """Columns of one scene's candidates (module docstring); every result array becomes a column."""
+                 pn_mm: np.ndarray, q1_objects: np.ndarray | None = None,
+                 q1_group: bool = False) -> dict[str, list | np.ndarray]:
+    """Columns of one scene's candidates (module docstring); every result array becomes a column.  ``q1`` is the
+    group Q1 when the scene's optimiser has ``fc_mode='group'`` (column ``q1_group`` true), the min over objects
+    otherwise; ``q1_objects`` is always the min over objects of the per-object Q1 (the hand alone)."""
     batch = len(arrays["accepted"])
     placements = record["scene"]["objects"]
     names = [pl["name"] for pl in placements]
@@ -144,6 +148,8 @@ def _row_columns(record: dict[str, Any], arrays: dict[str, np.ndarray], seed: in
         else:
             columns[name] = list(value.reshape(batch, -1))  # (B, prod(rest)) flattened per row
     columns["q1"], columns["pn_mm"] = q1, pn_mm
+    columns["q1_objects"] = q1 if q1_objects is None else q1_objects
+    columns["q1_group"] = np.full(batch, q1_group)
     return columns
 
 
@@ -196,18 +202,21 @@ def synthesize_shard(folder: Path, records: list[dict[str, Any]], stage: Synthes
         scene = Scene.from_dict(record["scene"])
         seed = scene_seed(base_seed, record["id"])
         t0 = time.perf_counter()
-        result = synthesize(hand, library, scene, stage.optimizer_for(len(scene.objects)),
-                            torch.Generator().manual_seed(seed))
+        optimizer = stage.optimizer_for(len(scene.objects))
+        group = optimizer.fc_mode == "group"
+        result = synthesize(hand, library, scene, optimizer, torch.Generator().manual_seed(seed))
         t1 = time.perf_counter()
         batch = int(result.accepted.shape[0])
         q1 = np.full(batch, np.nan)
+        q1_objects = np.full(batch, np.nan)
         pn_mm = np.full(batch, np.nan)
         rows = result.accepted.nonzero().flatten()
         if len(rows):
             scene_objects = SceneObjects(library, scene, hand.device, hand.dtype)
             p, R, q = result.p[rows].detach(), result.R[rows].detach(), result.q[rows].detach()
             index = rows.cpu().numpy()
-            q1[index] = q1_grasps(hand, scene_objects, p, R, q, stage.metrics, q1_surface)[0].numpy()
+            measured, per_object = q1_grasps(hand, scene_objects, p, R, q, stage.metrics, q1_surface, group=group)
+            q1[index], q1_objects[index] = measured.numpy(), per_object.amin(-1).numpy()
             pn_mm[index] = penetration_depth(hand, scene_objects, p, R, q, stage.metrics,
                                              pn_surface).pn_mm.detach().cpu().double().numpy()
         t2 = time.perf_counter()
@@ -215,7 +224,7 @@ def synthesize_shard(folder: Path, records: list[dict[str, Any]], stage: Synthes
         seconds["metrics"] += t2 - t1
         arrays = reject_weak(result.to_numpy(), q1, stage.min_q1)
         n_accepted = int(arrays["accepted"].sum())
-        tables.append(_table(_row_columns(record, arrays, seed, q1, pn_mm)))
+        tables.append(_table(_row_columns(record, arrays, seed, q1, pn_mm, q1_objects, group)))
         candidates += batch
         accepted_total += n_accepted
         elapsed = time.perf_counter() - start

@@ -31,6 +31,8 @@ HISTOGRAM_FLOOR = 1e-8
 
 
 SUMMARY_COLUMNS = ("scene_id", "split", "combination", "accepted", "reason", "q1", "pn_mm")
+#: Summary columns a table may lack (written by newer shard code only): used when present.
+OPTIONAL_SUMMARY_COLUMNS = ("q1_objects", "q1_group")
 
 
 def _mean_or_none(values) -> float | None:
@@ -47,7 +49,17 @@ def summarize(frame) -> dict[str, Any]:
     return {"scenes": int(frame["scene_id"].nunique()), "candidates": candidates, "accepted": int(len(accepted)),
             "accept_rate": len(accepted) / candidates if candidates else 0.0,
             "reasons": {str(k): int(v) for k, v in sorted(reasons.items())},
-            "mean_q1": _mean_or_none(accepted["q1"]), "mean_pn_mm": _mean_or_none(accepted["pn_mm"])}
+            "mean_q1": _mean_or_none(accepted["q1"]), "mean_pn_mm": _mean_or_none(accepted["pn_mm"]),
+            **_group_fields(frame, accepted)}
+
+
+def _group_fields(frame, accepted) -> dict[str, Any]:
+    """With group-force-closure rows (``q1_group``): ``mean_q1`` is their group Q1, so also report the hand-alone
+    ``mean_q1_objects`` (min over objects of the per-object Q1) and how many rows are group rows."""
+    if "q1_group" not in frame or not frame["q1_group"].fillna(False).astype(bool).any():
+        return {}
+    return {"q1_group_rows": int(frame["q1_group"].fillna(False).astype(bool).sum()),
+            "mean_q1_objects": _mean_or_none(accepted["q1_objects"])}
 
 
 def grasp_statistics(frame) -> dict[str, Any]:
@@ -67,7 +79,12 @@ def report_line(name: str, summary: dict[str, Any]) -> str:
             f"in {summary['scenes']} scene(s)")
     if summary["accepted"]:
         q1, pn = summary["mean_q1"], summary["mean_pn_mm"]
+        group = summary.get("q1_group_rows")
         line += f", mean Q1 {q1:.3f}" if q1 is not None else ""
+        if group and q1 is not None:
+            alone = summary.get("mean_q1_objects")
+            line += (f" (group Q1 on {group} row(s) of fc_mode 'group'; the hand alone, min over objects: "
+                     f"{alone:.3f})" if alone is not None else " (group Q1 on fc_mode 'group' rows)")
         line += f", mean PN {pn:.2f} mm" if pn is not None else ""
     if summary["reasons"]:
         line += " — rejected: " + ", ".join(f"{r} {n}" for r, n in
@@ -225,7 +242,8 @@ def merge_grasps(folder: Path, shards: list[Manifest], stage: SynthesisStageConf
     rejected = table.filter(pc.invert(table.column("accepted")))
     files: dict[str, Path] = {"grasps": write_parquet(folder / "grasps.parquet", accepted),
                               "rejected": write_parquet(folder / "rejected.parquet", rejected)}
-    stats = grasp_statistics(table.select(list(SUMMARY_COLUMNS)).to_pandas())
+    columns = list(SUMMARY_COLUMNS) + [c for c in OPTIONAL_SUMMARY_COLUMNS if c in table.column_names]
+    stats = grasp_statistics(table.select(columns).to_pandas())
     files["stats"] = atomic_write_json(folder / "stats.json", stats)
     report = report_markdown(stats)
     files["report"] = atomic_write_text(folder / "report.md", report)

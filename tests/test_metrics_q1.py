@@ -170,3 +170,19 @@ def test_per_link_q1_of_a_held_sphere_is_positive(hand, library):
                        dtype=torch.float64)
     none, _ = q1_grasps(hand, far, p, R, q, MetricsConfig(q1_contact_mode="per_link", contact_distance_m=0.01))
     assert float(none[0]) == 0.0
+
+
+def test_group_q1_of_a_sphere_grasp_split_between_two_objects_is_the_whole_grasps_q1():
+    # the six-axis grasp of a sphere, its contacts split between two "objects" (the +x/+y/+z half and the
+    # -x/-y/-z half): neither half is in force closure on its own (Q1 0), the group -- both halves about their
+    # common centre, with the sphere's radius as the group radius -- is the whole grasp.
+    from components.metrics.q1 import q1_group
+
+    cfg = MetricsConfig()
+    x = RADIUS * AXES
+    halves = [(x[0::2], AXES[0::2]), (x[1::2], AXES[1::2])]
+    for points, normals in halves:
+        assert q1_single_object(points, normals, np.zeros(3), RADIUS, cfg) == 0.0
+    whole = q1_single_object(x, AXES, np.zeros(3), RADIUS, cfg)
+    assert whole > 0.0
+    assert q1_group(halves, np.zeros(3), RADIUS, cfg) == pytest.approx(whole, rel=1e-12)

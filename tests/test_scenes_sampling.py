@@ -178,3 +178,31 @@ def test_a_scene_that_falls_over_is_reported_unstable(library, cfg):
     tilted = Scene.from_dict({"objects": [{"name": "cylinder", "position": [0.0, 0.0, 0.04], "quat_xyzw": [0.2588, 0.0, 0.0, 0.9659]}]})
     result = settle_scene(library, tilted, cfg)
     assert not result.stable and result.max_displacement_m > cfg.settle_tolerance_m
+
+
+def test_max_gap_asks_for_one_cluster_not_only_a_neighbour_each(library):
+    # four small cylinders (r 1.5 cm) in two touching pairs 10 cm apart: every cylinder has a neighbour within 1 cm,
+    # but the two pairs do not fit in one hand together
+    from components.objects.scenes import _within_max_gap
+
+    client = pb.connect(pb.DIRECT)
+    try:
+        def bodies_at(xs):
+            return [library.get("small_cylinder").pybullet_body(client, (x, 0.0, 0.025), (0.0, 0.0, 0.0, 1.0)) for x in xs]
+
+        apart = bodies_at([0.0, 0.035, 0.135, 0.17])
+        assert not _within_max_gap(client, apart, 0.01)
+        row = bodies_at([0.5, 0.535, 0.57, 0.605])  # a row of four, 5 mm between neighbours
+        assert _within_max_gap(client, row, 0.01)
+        assert _within_max_gap(client, apart, None)
+    finally:
+        pb.disconnect(physicsClientId=client)
+
+
+def test_max_gap_many_applies_above_the_many_threshold_only():
+    from components.objects.scenes import max_gap_for
+
+    cfg = ScenesConfig(max_gap_m=0.025, max_gap_many_m=0.01, many_threshold=3)
+    assert max_gap_for(2, cfg) == 0.025 and max_gap_for(3, cfg) == 0.025
+    assert max_gap_for(4, cfg) == 0.01 and max_gap_for(5, cfg) == 0.01
+    assert max_gap_for(5, ScenesConfig(max_gap_m=0.025)) == 0.025  # unset: max_gap_m for every count

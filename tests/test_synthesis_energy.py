@@ -24,8 +24,8 @@ from components.synthesis import (
     table_penetration,
     unpack,
 )
-from components.synthesis.energy import (hand_points_object_distances, near_normals, object_points_hand_distances,
-                                         surround_energy)
+from components.synthesis.energy import (group_force_closure_error, hand_points_object_distances, near_normals,
+                                         object_points_hand_distances, surround_energy)
 from components.synthesis.initializations import palm_centre_local
 
 DTYPE = torch.float64
@@ -362,3 +362,44 @@ def test_surround_weight_enters_the_total_with_the_dense_gradient(hand, library)
     v_dense, g_dense = value_and_grad(objects.sdf)
     assert v_culled == pytest.approx(v_dense, rel=1e-12) and g_culled.abs().sum() > 0
     assert torch.allclose(g_culled, g_dense, rtol=1e-9, atol=1e-12)
+
+
+def test_group_force_closure_balances_a_pinch_of_two_touching_cubes_that_neither_cube_balances_alone(hand, library):
+    # two cubes side by side along x, pinched from the outside: one contact on the left face of the left cube
+    # (outward normal -x) and one on the right face of the right cube (+x), both on the line through the centroid.
+    # Per object one unit force is unbalanced (E_fc = |n|^2 = 1 with margin 0); as one body the two cancel in force
+    # and (lever arms parallel to the forces) in torque: E_fc^group = 0.
+    half = 0.02  # the library cube's half side (m)
+    scene = Scene(objects=(Placement("cube", (-half, 0.0, half), IDENTITY), Placement("cube", (half, 0.0, half), IDENTITY)))
+    objects = SceneObjects(library, scene, dtype=DTYPE)
+    points = torch.tensor([[[[-2 * half, 0.0, half]], [[2 * half, 0.0, half]]]], dtype=DTYPE)  # (B, n_obj, C, 3)
+    normals = torch.tensor([[[[-1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]]], dtype=DTYPE)
+    cfg = SynthesisConfig(fc_margin=0.0, fc_friction=0.0, contacts_per_object=1)
+    group = GraspProblem.build(hand, objects, cfg.model_copy(update={"fc_mode": "group"}))
+    assert float(group_force_closure_error(group, points, normals)[0]) == pytest.approx(0.0, abs=1e-12)
+    for j in range(2):
+        alone = force_closure_error(points[:, j], normals[:, j], objects.positions[j], torch.tensor(1.0, dtype=DTYPE), 0.0)
+        assert float(alone[0]) == pytest.approx(1.0)
+    # an unbalanced pair (both pushes from the left) is not in group closure: |2 n|^2 = 4
+    same = torch.tensor([[[[-1.0, 0.0, 0.0]], [[-1.0, 0.0, 0.0]]]], dtype=DTYPE)
+    assert float(group_force_closure_error(group, points, same)[0]) == pytest.approx(4.0)
+    # lever arms are normalised by the group's bounding radius (both cubes' centres +-half from the centroid)
+    assert float(group.group_lever_length) == pytest.approx(objects.bounding_radius)
+
+
+def test_group_mode_energy_reports_one_force_closure_error_for_every_object(hand, library):
+    scene = Scene(objects=(Placement("cube", (-0.03, 0.0, 0.02), IDENTITY), Placement("sphere", (0.03, 0.01, SPHERE_RADIUS), IDENTITY)))
+    objects = SceneObjects(library, scene, dtype=DTYPE)
+    cfg = SynthesisConfig(batch_size=4, fc_mode="group")
+    problem = GraspProblem.build(hand, objects, cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    total, grad, terms = energy_and_grad(problem, x, contacts)
+    assert torch.isfinite(grad).all()
+    assert terms["fc_per_object"].shape == (4, 2)
+    assert torch.equal(terms["fc_per_object"][:, 0], terms["fc_per_object"][:, 1])
+    assert torch.equal(terms["fc"], terms["fc_per_object"][:, 0])  # the total counts the group once
+    per_object = GraspProblem.build(hand, objects, cfg.model_copy(update={"fc_mode": "per_object"}))
+    _, other = energy(per_object, x, contacts)
+    assert not torch.allclose(other["fc"], terms["fc"])  # a different criterion, same poses and contacts
+    assert torch.allclose(other["dist"], terms["dist"]) and torch.allclose(other["pen"], terms["pen"])
+

@@ -110,7 +110,7 @@ def test_zero_accepted_combination_gives_a_report_line_with_reasons():
     stats = tasks.synthesize_merge.grasp_statistics(frame)
     summary = stats["combinations"]["Pl/cube+sphere"]
     assert summary["accepted"] == 0 and summary["reasons"] == {"fc": 2, "penetration": 1}
-    assert summary["mean_q1"] is None
+    assert summary["mean_q1"] is None and "q1_group_rows" not in summary  # no group rows: no group fields
     line = tasks.synthesize_merge.report_line("Pl/cube+sphere", summary)
     assert line.startswith("Pl/cube+sphere: 0/3 accepted") and "fc 2" in line and "penetration 1" in line
 
@@ -335,3 +335,20 @@ def test_stage_uses_the_override_for_scenes_of_that_count(stage_runs, stage_conf
     sizes = frame.groupby("scene_id").size()
     pairs = frame.groupby("scene_id").object_names.first().map(len) == 2
     assert set(sizes[pairs]) == {2} and set(sizes[~pairs]) == {BATCH}
+
+
+def test_group_force_closure_for_pairs_writes_group_q1_and_the_hand_alone_q1(stage_runs, stage_config):
+    import pandas as pd
+
+    workdir, _, _ = stage_runs
+    assert _run(workdir, stage_config, *ACCEPT_ALL, "synthesis.optimizer_by_object_count={2: {fc_mode: group}}") == 0
+    merge = _merge_manifest(workdir)
+    frame = pd.read_parquet(merge.path("grasps"))
+    pairs = frame.object_names.map(len) == 2
+    assert frame.loc[pairs, "q1_group"].all() and not frame.loc[~pairs, "q1_group"].any()
+    singles = frame[~pairs]
+    assert np.allclose(singles.q1, singles.q1_objects, equal_nan=True)  # one object: Q1 is the object's
+    assert frame.loc[pairs, "q1_objects"].notna().all() and frame.loc[pairs, "q1"].notna().all()
+    stats = json.loads(merge.path("stats").read_text())
+    assert stats["overall"]["q1_group_rows"] == int(pairs.sum())
+    assert "the hand alone" in merge.path("report").read_text()

@@ -19,6 +19,10 @@ Definition used here, for one object O with centre of mass c and radius r (``Obj
   there are no contacts, when the wrenches are rank-deficient (they cannot span the 6-D wrench space,
   e.g. one or two point contacts) or when the origin is not strictly inside W (no force closure).
 * **Multi-object Q1** = min over the scene's objects.
+* **Group Q1** (``q1_grasps(group=True)``, for grasps synthesised with ``fc_mode='group'``): the objects as one
+  rigid body -- every object's contacts together, torques about the objects' centroid normalised by the
+  group's bounding radius (``SceneObjects.bounding_radius``).  It assumes the objects' contacts with each
+  other hold them together, so it bounds from above what the hand alone holds.
 """
 
 from __future__ import annotations
@@ -94,6 +98,14 @@ def q1_single_object(points: np.ndarray, normals: np.ndarray, centre: np.ndarray
     return q1_from_wrenches(wrenches, cfg.q1_rank_tolerance)
 
 
+def q1_group(contacts: list[tuple[np.ndarray, np.ndarray]], centroid: np.ndarray, radius: float,
+             cfg: MetricsConfig) -> float:
+    """Group Q1 (module docstring): the (points, normals) of every object together, about ``centroid``, torques
+    normalised by the group's bounding ``radius``."""
+    return q1_single_object(np.concatenate([c for c, _ in contacts]), np.concatenate([n for _, n in contacts]),
+                            centroid, radius, cfg)
+
+
 def nearest_per_link(distances: np.ndarray, links: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Of the sample indices ``candidates``, the one of lowest distance on each link (ties: the first).
     distances (M,), links (M,) -> indices (<= number of links,)."""
@@ -128,13 +140,16 @@ def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarr
 
 
 def q1_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: Tensor, cfg: MetricsConfig,
-              hand_surface: HandSurface | None = None) -> tuple[Tensor, Tensor]:
+              hand_surface: HandSurface | None = None, group: bool = False) -> tuple[Tensor, Tensor]:
     """Q1 of every grasp H = (p (B, 3), R (B, 3, 3), q (B, 22)) in the scene of ``objects``.
-    -> (multi-object Q1 = min over objects (B,), per object (B, n_obj)), float64 on the CPU."""
+    -> (multi-object Q1 = min over objects (B,), or with ``group`` the group Q1 (module docstring),
+    per object (B, n_obj)), float64 on the CPU."""
     samples = hand_surface if hand_surface is not None else HandSurface(hand, cfg.q1_hand_point_spacing_m)
     centres = objects.positions.double().cpu().numpy()
     radii = objects.radii.double().cpu().numpy()
     per_object = np.zeros((p.shape[0], objects.n_objects))
+    grouped = np.zeros(p.shape[0])
+    centroid, group_radius = objects.centroid.double().cpu().numpy(), objects.bounding_radius
     links = samples.link.cpu().numpy()
     with torch.no_grad():
         for start in range(0, p.shape[0], cfg.batch_chunk):
@@ -143,8 +158,11 @@ def q1_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: T
             dist, normal = objects.sdf_and_normal(points)  # (b, M, n_obj), (b, M, n_obj, 3)
             points, dist, normal = (t.double().cpu().numpy() for t in (points, dist, normal))
             for i in range(points.shape[0]):
-                for j in range(objects.n_objects):
-                    contacts, normals = object_contacts(dist[i, :, j], points[i], normal[i, :, j], cfg, links)
+                found = [object_contacts(dist[i, :, j], points[i], normal[i, :, j], cfg, links)
+                         for j in range(objects.n_objects)]
+                for j, (contacts, normals) in enumerate(found):
                     per_object[start + i, j] = q1_single_object(contacts, normals, centres[j], radii[j], cfg)
+                if group:
+                    grouped[start + i] = q1_group(found, centroid, group_radius, cfg)
     per_object_t = torch.as_tensor(per_object)
-    return per_object_t.amin(-1), per_object_t
+    return (torch.as_tensor(grouped) if group else per_object_t.amin(-1)), per_object_t

@@ -125,10 +125,26 @@ def _closest_distance(client: int, body_a: int, body_b: int, max_distance: float
 
 
 def _within_max_gap(client: int, bodies: Sequence[int], max_gap: Optional[float]) -> bool:
-    """True when ``max_gap`` is None or every body has another within ``max_gap`` (closest distance, m)."""
+    """True when ``max_gap`` is None or the bodies form one cluster: linking every two bodies whose closest
+    distance is at most ``max_gap`` (m) connects them all (for two bodies: they are within it; for more, no
+    group of them stands apart from the rest, so that all fit in one hand together)."""
     if max_gap is None or len(bodies) < 2:
         return True
-    return all(any(_closest_distance(client, a, b, max_gap) <= max_gap for b in bodies if b != a) for a in bodies)
+    reached, frontier = {bodies[0]}, [bodies[0]]
+    while frontier:
+        a = frontier.pop()
+        for b in bodies:
+            if b not in reached and _closest_distance(client, a, b, max_gap) <= max_gap:
+                reached.add(b)
+                frontier.append(b)
+    return len(reached) == len(bodies)
+
+
+def max_gap_for(n_objects: int, cfg: ScenesConfig) -> Optional[float]:
+    """Largest gap to a neighbour: ``max_gap_m``, or ``max_gap_many_m`` (when set) above ``many_threshold`` objects."""
+    if n_objects > cfg.many_threshold and cfg.max_gap_many_m is not None:
+        return cfg.max_gap_many_m
+    return cfg.max_gap_m
 
 
 def xy_half_range(n_objects: int, cfg: ScenesConfig) -> float:
@@ -139,15 +155,16 @@ def xy_half_range(n_objects: int, cfg: ScenesConfig) -> float:
 def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Generator, cfg: ScenesConfig) -> Scene:
     """A random scene of ``names``: each object in a random resting pose (by probability), random
     yaw, xy uniform in ±range; whole scenes are rejected while any two objects are closer than
-    ``min_gap_m`` (PyBullet closest distance between their collision shapes) or, with ``max_gap_m``, while
-    an object is farther than that from every other one, at most ``max_tries`` times.
+    ``min_gap_m`` (PyBullet closest distance between their collision shapes) or, with ``max_gap_m``
+    (``max_gap_many_m`` above ``many_threshold`` objects), while the objects do not form one cluster of
+    neighbours within that gap, at most ``max_tries`` times.
     """
     names = list(names)
     if not names:
         raise MultigraspError("sample_scene needs at least one object name; pass e.g. ['cube', 'sphere']")
     for name in names:
         lib.require(name, where="the scene")
-    half = xy_half_range(len(names), cfg)
+    half, gap = xy_half_range(len(names), cfg), max_gap_for(len(names), cfg)
     client = pb.connect(pb.DIRECT)
     try:
         bodies = [lib.get(n).pybullet_body(client, (0.0, 0.0, PARKING_Z_M * (i + 1)), (0.0, 0.0, 0.0, 1.0)) for i, n in enumerate(names)]
@@ -156,11 +173,12 @@ def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Genera
             for body, placement in zip(bodies, placements):
                 pb.resetBasePositionAndOrientation(body, placement.position, placement.quat_xyzw, physicsClientId=client)
             if all(_closest_distance(client, a, b, cfg.min_gap_m) >= cfg.min_gap_m for a, b in itertools.combinations(bodies, 2)) \
-                    and _within_max_gap(client, bodies, cfg.max_gap_m):
+                    and _within_max_gap(client, bodies, gap):
                 return Scene(objects=tuple(placements))
     finally:
         pb.disconnect(physicsClientId=client)
-    near = f" and within {cfg.max_gap_m * 100:.1f} cm of another (scenes.sampling.max_gap_m)" if cfg.max_gap_m else ""
+    key = "max_gap_many_m" if gap is not None and gap != cfg.max_gap_m else "max_gap_m"
+    near = f" and within {gap * 100:.1f} cm of another (scenes.sampling.{key})" if gap else ""
     raise MultigraspError(
         f"could not place {names} on the table without overlap{near} in {cfg.max_tries} tries within "
         f"±{half * 100:.2f} cm; increase scenes.xy_half_range_m (xy_half_range_many_m above "

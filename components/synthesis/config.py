@@ -80,6 +80,17 @@ class SynthesisConfig(Section):
         "Measured with fc_margin 0 (bench setting, B = 32, 1 thread; off in brackets): cube + cylinder seed 0 "
         "14/32 accepted, Q1 0.071 (14/32, 0.045); seed 1 17/32, Q1 0.025 (24/32, 0.047); capsule + bar seed 1 "
         "2/32, Q1 0.050 (4/32, 0.043): no gain beyond the scene-to-scene noise; 1 by default.")
+    fc_mode: Literal["per_object", "group"] = Field(
+        "per_object",
+        description="What must be in force closure.  'per_object' (the paper's Eq. multi-dfc-energy, the official code): "
+        "E_fc of each object over its own contacts_per_object contacts, and the filter's fc test on the worst object.  "
+        "'group': the objects held as one rigid body -- one E_fc over every object's contacts, lever arms from the "
+        "objects' centroid (normalised by the group's bounding radius when fc_normalize_by_radius), and the filter's "
+        "fc test on it; Q1 is then measured for the group too (metrics.q1_grasps(group=True)).  It assumes the "
+        "objects' contacts with each other hold them together, which the paper says four and five small cylinders "
+        "need ('inter-object contact becomes essential'): per object, four cylinders with 2 contacts each never "
+        "reached force closure here (E_fc stalls at 0.30; README 'Synthesis settings').  Meant for the 'many' split "
+        "through optimizer_by_object_count; a weaker test than 'per_object' (an upper bound on what the hand alone holds).")
     fc_normalize_by_radius: bool = Field(
         True,
         description="Lever arms x in G = [I; [x]x] are measured from the object's centre and divided by its radius, so "

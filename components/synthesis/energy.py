@@ -10,7 +10,9 @@ lambda_p E_p + lambda_sp E_sp; the table term is what makes the problem tabletop
 paper's E_q.  The official MultiGrasp release uses the same four weights 1 / 10 / 10 / 10.
 
 One equation per function below; :func:`energy` assembles them and returns the total with every named
-term, per row (B,) and, where it is a sum over objects, per object (B, n_obj).  It also returns
+term, per row (B,) and, where it is a sum over objects, per object (B, n_obj).  With ``fc_mode='group'`` the
+w_fc term is one E_fc of all objects' contacts about their centroid (:func:`group_force_closure_error`), and
+``fc_per_object`` repeats it for every object.  It also returns
 detached *diagnostics* in metres (largest contact distance, deepest sampled penetration) for the filter.
 """
 
@@ -111,6 +113,23 @@ def force_closure_error(points: Tensor, normals: Tensor, centre: Tensor, length:
     return torch.relu((force * force).sum(-1) + (torque * torque).sum(-1) - margin)
 
 
+def group_force_closure_error(problem: "GraspProblem", points: Tensor, normals: Tensor,
+                              weights: Optional[Tensor] = None) -> Tensor:
+    """Force-closure error of the objects held as one rigid body (``fc_mode='group'``):
+    :func:`force_closure_error` over every object's contacts together, lever arms from the objects' centroid
+    divided by ``problem.group_lever_length``,
+
+        E_fc^group = relu(|sum_{j,i} f_ji|^2 + |sum_{j,i} x_ji x f_ji|^2 - margin),  x_ji = (c_ji - centroid) / L.
+
+    points, normals (B, n_obj, C, 3) (normals: each object's outward unit normal at its contacts), weights
+    (B, n_obj, C) or None -> (B,)."""
+    cfg = problem.cfg
+    batch = points.shape[0]
+    return force_closure_error(points.reshape(batch, -1, 3), normals.reshape(batch, -1, 3), problem.objects.centroid,
+                               problem.group_lever_length, cfg.fc_margin, cfg.fc_friction,
+                               None if weights is None else weights.reshape(batch, -1), cfg.fc_friction_iterations)
+
+
 def contact_distance_energy(signed_distance: Tensor) -> Tensor:
     """Contact distance of one object (DESIGN §5.1, E_dist):  E_dist = sum_i |d_O(c_i)|  (m), the distance
     of each assigned hand contact point to the object's surface.   (B, C) -> (B,)."""
@@ -206,6 +225,7 @@ class GraspProblem:
     hand_surface: HandSurface  # samples tested against the object SDFs (large geoms excluded)
     object_points: Tensor  # (n_obj, P, 3) world surface samples tested against the hand SDF
     lever_lengths: Tensor  # (n_obj,) torque normalisation of E_fc
+    group_lever_length: Tensor  # () torque normalisation of the group E_fc (fc_mode='group')
 
     @classmethod
     def build(cls, hand: HandModel, objects: SceneObjects, cfg: SynthesisConfig) -> "GraspProblem":
@@ -216,10 +236,11 @@ class GraspProblem:
                 f"{objects.n_objects} objects x synthesis.contacts_per_object={cfg.contacts_per_object} contacts need more "
                 f"than the hand's {n_candidates} contact candidates; lower contacts_per_object or raise hand.contact_points_per_region")
         lengths = objects.radii if cfg.fc_normalize_by_radius else torch.ones_like(objects.radii)
+        group_length = objects.radii.new_tensor(objects.bounding_radius if cfg.fc_normalize_by_radius else 1.0)
         return cls(hand=hand, objects=objects, cfg=cfg,
                    hand_surface=HandSurface(hand, cfg.hand_point_spacing_m, exclude=LARGE_HAND_GEOMS),
                    object_points=objects.surface_points(cfg.object_surface_points, cfg.seed_surface_points),
-                   lever_lengths=lengths)
+                   lever_lengths=lengths, group_lever_length=group_length)
 
     @property
     def finger_of(self) -> Tensor:
@@ -514,16 +535,23 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         contacts = region_contacts(problem, contacts, candidate_points.detach(), candidate_normals.detach())
     contact_points = gather_contacts(candidate_points, contacts)  # (B, n_obj, C, 3)
     contact_normals = gather_contacts(candidate_normals, contacts)
-    fc, dist, align, excess, contact_dist = [], [], [], [], []
+    fc, dist, align, excess, contact_dist, surface_normals, gates = [], [], [], [], [], [], []
     for j in range(objects.n_objects):
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
-        fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
-                                      cfg.fc_margin, cfg.fc_friction, gate, cfg.fc_friction_iterations))
+        if cfg.fc_mode == "per_object":
+            fc.append(force_closure_error(contact_points[:, j], n, objects.positions[j], problem.lever_lengths[j],
+                                          cfg.fc_margin, cfg.fc_friction, gate, cfg.fc_friction_iterations))
+        surface_normals.append(n)
+        gates.append(gate)
         dist.append(contact_distance_energy(d))
         excess.append(contact_excess_energy(d, cfg.contact_excess_m))
         align.append(contact_alignment_energy(contact_normals[:, j], n))
         contact_dist.append(d.detach().abs())
+    if cfg.fc_mode == "group":
+        fc_group = group_force_closure_error(problem, contact_points, torch.stack(surface_normals, dim=1),
+                                             None if gates[0] is None else torch.stack(gates, dim=1))
+        fc = [fc_group] * objects.n_objects  # every object reports the group's error (the filter's max is it)
     fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
     align_per_object = torch.stack(align, dim=-1)
 
@@ -538,7 +566,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         surround = torch.zeros_like(pen)
 
     prior = joint_limit_energy(hand, q)
-    fc_total, dist_total = fc_per_object.sum(-1), dist_per_object.sum(-1)
+    fc_total = fc_group if cfg.fc_mode == "group" else fc_per_object.sum(-1)
+    dist_total = dist_per_object.sum(-1)
     excess_total = torch.stack(excess, dim=-1).sum(-1)
     align_total = align_per_object.sum(-1)
     total = (w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
