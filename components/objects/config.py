@@ -115,8 +115,8 @@ class ScenesConfig(Section):
     max_gap_many_m: Optional[float] = Field(
         None, gt=0,
         description="max_gap_m for scenes with more than `many_threshold` objects (None = max_gap_m).  The 'many' "
-        "split's small cylinders held by group force closure (synthesis fc_mode 'group') must nearly touch: the "
-        "bench profile sets 1 cm.")
+        "split's small cylinders held by group force closure (synthesis fc_mode 'group') must nearly touch: 1 cm "
+        "gave 6/32 accepted four-cylinder grasps (README 'Synthesis settings'); no profile sets it yet.")
     max_tries: int = Field(2000, ge=1, description="Rejection-sampling tries for one scene before giving up with an error.")
     settle_time_s: float = Field(1.0, gt=0, description="Simulated time for which a placed scene must stay put.")
     settle_tolerance_m: float = Field(0.002, gt=0, description="A scene is stable if every object origin moves less than this while settling.")
