@@ -14,6 +14,7 @@ from components.generation import (
     ddim_step,
     ddim_timesteps,
     p_sample,
+    sample,
 )
 
 
@@ -65,3 +66,28 @@ def test_generator_sampler_switch_is_deterministic_with_eta_zero():
     torch.testing.assert_close(a, b)
     ddpm = model.sample(objects, per_scene=3, generator=torch.Generator().manual_seed(5))
     assert not torch.allclose(a, ddpm)
+
+
+def test_denoise_from_any_timestep_with_the_exact_noise_model_lands_on_the_point():
+    from components.generation import denoise_from, q_sample
+
+    schedule = NoiseSchedule(100, 1e-4, 0.01)
+    target = torch.tensor([[0.3, -1.2, 2.0]], dtype=torch.float64)
+
+    def exact(x, t, cond):
+        abar = schedule.alphas_cumprod[t].unsqueeze(-1)
+        return (x - abar.sqrt() * target) / (1.0 - abar).sqrt()
+
+    gen = torch.Generator().manual_seed(3)
+    for t in (0, 10, 50, 99):
+        x_t = q_sample(schedule, target.expand(4, 3), torch.full((4,), t), torch.randn(4, 3, generator=gen,
+                                                                                         dtype=torch.float64))
+        out = denoise_from(exact, schedule, x_t, t, None, generator=gen)
+        torch.testing.assert_close(out, target.expand(4, 3), rtol=0, atol=1e-9)
+    # sample() is denoise_from(T - 1) of N(0, I) draws: the same generator state gives the same result
+    a = sample(_toy_model, schedule, (3, 2), None, torch.Generator().manual_seed(5), dtype=torch.float64)
+    start = torch.randn(3, 2, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    gen = torch.Generator().manual_seed(5)
+    torch.randn(3, 2, generator=gen, dtype=torch.float64)
+    b = denoise_from(_toy_model, schedule, start, 99, None, gen)
+    torch.testing.assert_close(a, b, rtol=0, atol=0)

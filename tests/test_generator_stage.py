@@ -137,3 +137,26 @@ def test_sampler_quality_tool_compares_settings_on_the_same_scenes(trained, tmp_
     assert rows["fast"]["pn_before_refine_mm"] >= 0.0
     assert sampler_quality.main([*argv, "--variant", "oops"]) == 2
     assert "NAME=KEY=VALUE" in capsys.readouterr().err
+
+
+def test_generator_fidelity_tool_compares_samples_with_their_training_grasps(trained, tmp_path, capsys):
+    from benchmarks import generator_fidelity
+
+    workdir, base, _, _ = trained
+    out = tmp_path / "fidelity.json"
+    config_args = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--config"]
+    sets = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--set"]
+    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", config_args[0], "--scenes", "1",
+            "--per-scene", "2", "--noise-steps", "3", "--json", str(out)]
+    for item in sets:
+        argv += ["--set", item]
+    assert generator_fidelity.main(argv) == 0
+    rows = {r["row"]: r for r in json.loads(out.read_text())["rows"]}
+    T = 100  # the smoke profile's diffusion steps (GeneratorConfig default)
+    assert list(rows) == ["data", "data -> IK", "noised t=3 -> denoised", f"sampled (N(0, I) at t={T})"]
+    assert all(r["n"] == rows["data"]["n"] >= 1 and r["pn_mm"] >= 0.0 for r in rows.values())
+    assert rows["data -> IK"]["keypoint_shift_mm"] < 1e-3  # the representation round trip itself moves nothing
+    assert rows["noised t=3 -> denoised"]["keypoint_shift_mm"] > 0.0 and rows["data"]["ik_error_mm"] is None
+    assert rows[f"sampled (N(0, I) at t={T})"]["keypoint_shift_mm"] is None
+    assert generator_fidelity.main([*argv, "--noise-steps", "x"]) == 2
+    assert "comma-separated integers" in capsys.readouterr().err

@@ -22,6 +22,7 @@ from components.generation.diffusion import (
     ddim_sample,
     ddim_step,
     ddim_timesteps,
+    denoise_from,
     diffusion_loss,
     linear_beta_schedule,
     p_sample,
@@ -53,7 +54,7 @@ from components.generation.training import TrainResult, load_generator, train_ge
 __all__ = [
     "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
     "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SamplerConfig",
-    "SetAbstraction", "ddim_sample", "ddim_step", "ddim_timesteps",
+    "SetAbstraction", "ddim_sample", "ddim_step", "ddim_timesteps", "denoise_from",
     "Standardizer", "ball_query", "contact_energy", "diffusion_loss", "farthest_point_sampling",
     "from_representation", "generate_grasps", "group", "kabsch", "keypoint_error", "linear_beta_schedule",
     "p_sample", "palm_direction", "palm_keypoint_indices", "penetration_energy", "q_sample", "refine_grasps",

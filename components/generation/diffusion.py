@@ -132,8 +132,19 @@ def sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], con
     device = torch.device(device) if device is not None else schedule.betas.device
     gen_device = generator.device if generator is not None else device
     x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
-    for t in reversed(range(schedule.steps)):
-        x = p_sample(model, schedule, x, t, cond, generator, clip)
+    return denoise_from(model, schedule, x, schedule.steps - 1, cond, generator, clip)
+
+
+def denoise_from(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, cond: Any,
+                 generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
+    """Ancestral sampling from a given x_t: :func:`p_sample` for t, t-1, .. 0.  With x_t = q_sample(x0, t) this
+    is a partial noising and denoising of x0 (SDEdit, Meng et al. 2022); t = T-1 from N(0, I) is :func:`sample`.
+    x_t (B, D) -> x_0 (B, D)."""
+    if not 0 <= t < schedule.steps:
+        raise ValueError(f"t must be in 0 .. {schedule.steps - 1} (the schedule's T - 1), got {t}")
+    x = x_t
+    for step in reversed(range(t + 1)):
+        x = p_sample(model, schedule, x, step, cond, generator, clip)
     return x
 
 
