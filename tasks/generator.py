@@ -5,7 +5,9 @@ One unit, ``stage``: the palm-aligned dataset of the synthesis table's grasps of
 (:class:`components.generation.GraspDataset`), :func:`components.generation.train_generator` with its
 checkpoint ``generator.pt`` in the unit folder -- written every ``model.checkpoint_every`` steps, so a
 killed training resumes from the last checkpoint (and a finished one is served from cache) --
-``history.json`` and ``loss.png``.
+``history.json`` and ``loss.png``.  A longer training (``model.train_steps`` raised, nothing else of the model
+changed) starts from the longest finished one on the same data and code (:func:`longest_finished_training`;
+the manifest's ``meta.extended_from`` names it) instead of from step 0: same weights, less time.
 
 ``records_source='lowest_energy'`` (smoke profile only, like the specialists stage) trains on the
 lowest-energy candidates of each scene when the tiny smoke synthesis accepts none: plumbing, not results.
@@ -13,6 +15,7 @@ lowest-energy candidates of each scene when the tiny smoke synthesis accepts non
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -22,7 +25,7 @@ from pydantic import Field
 from components.config_base import Section
 from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
 from components.objects.config import ObjectsConfig
-from tasks.artifacts import Manifest, atomic_write_json
+from tasks.artifacts import Manifest, atomic_write_json, valid_manifest
 from tasks.grasp_tables import RecordsSource, grasp_rows
 from tasks.pointnet import plot_history
 from tasks.preflight import cache_dir
@@ -60,8 +63,31 @@ def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):
     return frame
 
 
+def longest_finished_training(folder: Path, synthesis: Manifest, code: str, cfg: GeneratorConfig
+                              ) -> tuple[Manifest, int] | None:
+    """The finished ``train-generator`` unit beside ``folder`` (same stage directory) that a training of ``cfg``
+    can continue from -- same synthesis output, same code version, same generator config apart from
+    ``train_steps`` / ``log_every`` / ``checkpoint_every``, at most ``cfg.train_steps`` steps -- with the most
+    steps, and that step; None if there is none.  Since step s's minibatch, noise and timesteps depend only on
+    (seed, s) and the learning rate is constant, continuing it gives the weights of a training from scratch."""
+    from components.generation import extendable_step
+
+    best = None
+    for other in sorted(Path(folder).parent.iterdir()) if Path(folder).parent.is_dir() else []:
+        if other == Path(folder) or not other.is_dir():
+            continue
+        manifest = valid_manifest(other)
+        if manifest is None or manifest.code_version != code or manifest.upstream.get("synthesize") != synthesis.hash \
+                or "generator" not in manifest.files:
+            continue
+        step = extendable_step(manifest.path("generator"), cfg)
+        if step is not None and (best is None or step > best[1]):
+            best = (manifest, step)
+    return best
+
+
 def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, objects: ObjectsConfig, hand_cfg,
-               device: str, torch_threads: int, cache: Path) -> UnitOutput:
+               device: str, torch_threads: int, cache: Path, code: str = "") -> UnitOutput:
     import torch
 
     from components.generation import GraspDataset, train_generator
@@ -70,6 +96,14 @@ def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, o
 
     if torch_threads:
         torch.set_num_threads(torch_threads)
+    extended_from = ""
+    if not (folder / "generator.pt").exists():  # no checkpoint of its own yet: continue a shorter finished training
+        found = longest_finished_training(folder, synthesis, code, stage.model)
+        if found is not None:
+            shutil.copyfile(found[0].path("generator"), folder / "generator.pt")
+            extended_from = found[0].key
+            print(f"train-generator: continuing the finished {found[1]}-step training {found[0].folder} "
+                  f"to {stage.model.train_steps} steps", file=sys.stderr, flush=True)
     hand = HandModel(hand_cfg)
     library = ObjectLibrary(objects, cache_dir=cache)
     dataset = GraspDataset.from_frame(training_frame(synthesis, stage), library, hand, stage.model)
@@ -84,7 +118,7 @@ def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, o
     last = result.history[-1]["loss"] if result.history else float("nan")
     return UnitOutput(files={"generator": folder / "generator.pt", "history": history, "loss_plot": plot},
                       metrics={"grasps": len(dataset), "scenes": dataset.scenes, "loss_last": round(float(last), 6)},
-                      meta={"resumed_from": result.resumed_from})
+                      meta={"resumed_from": result.resumed_from, "extended_from": extended_from})
 
 
 @task(name="train-generator", cache_policy=VerifiedUnitCache(), persist_result=True)
@@ -92,4 +126,4 @@ def train_task(spec: UnitSpec, synthesis: Manifest, stage: GeneratorStageConfig,
                device: str, torch_threads: int) -> Manifest:
     """Prefect unit: the trained generator (checkpoint kept in the unit folder: a rerun after a crash resumes)."""
     return run_unit(spec, lambda folder: train_unit(folder, synthesis, stage, objects, hand_cfg, device, torch_threads,
-                                                    cache_dir(Path(spec.workdir))))
+                                                    cache_dir(Path(spec.workdir)), spec.code))

@@ -172,6 +172,20 @@ def test_resume_from_an_interrupted_run_matches_an_uninterrupted_one(dataset, cf
     assert again.resumed_from == 10 and len(again.history) == 10
 
 
+def test_extendable_step_accepts_a_shorter_training_of_the_same_model_only(dataset, cfg, tmp_path):
+    from components.generation import extendable_step
+
+    path = tmp_path / "generator.pt"
+    train_generator(dataset, cfg.model_copy(update={"train_steps": 3}), path)
+    assert extendable_step(path, cfg) == 3  # cfg trains 10 steps: continue from 3
+    assert extendable_step(path, cfg.model_copy(update={"train_steps": 3, "log_every": 7})) == 3
+    assert extendable_step(path, cfg.model_copy(update={"train_steps": 2})) is None  # longer than asked
+    assert extendable_step(path, cfg.model_copy(update={"lr": cfg.lr / 2})) is None  # another training
+    assert extendable_step(tmp_path / "missing.pt", cfg) is None
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    assert extendable_step(tmp_path / "bad.pt", cfg) is None
+
+
 def test_corrupt_or_foreign_or_mismatched_checkpoints_are_one_line_errors(dataset, cfg, trained, tmp_path):
     bad = tmp_path / "generator.pt"
     bad.write_bytes(b"not a checkpoint")

@@ -4,6 +4,7 @@ a tiny generator, generation for an object it never saw (a user mesh), clear err
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -39,7 +40,8 @@ def trained(tmp_path_factory):
 
 def test_train_generator_stage_writes_a_checkpoint_and_a_loss_curve(trained):
     workdir, _, first, again = trained
-    manifests = [m for m in map(read_manifest, (workdir / "stages" / "train-generator").iterdir()) if m is not None]
+    manifests = [m for m in map(read_manifest, (workdir / "stages" / "train-generator").iterdir())
+                 if m is not None and not m.meta.get("extended_from")]  # not the longer one of the test below
     (manifest,) = manifests
     history = json.loads(manifest.path("history").read_text())
     assert history[-1]["step"] == 6 and manifest.metrics["grasps"] >= 1
@@ -160,3 +162,18 @@ def test_generator_fidelity_tool_compares_samples_with_their_training_grasps(tra
     assert rows[f"sampled (N(0, I) at t={T})"]["keypoint_shift_mm"] is None
     assert generator_fidelity.main([*argv, "--noise-steps", "x"]) == 2
     assert "comma-separated integers" in capsys.readouterr().err
+
+
+def test_a_longer_training_continues_the_finished_shorter_one(trained):
+    workdir, base, first, _ = trained
+    stage_dir = workdir / "stages" / "train-generator"
+    (short,) = [m for m in map(read_manifest, stage_dir.iterdir()) if m is not None and not m.meta.get("extended_from")]
+    longer = [*base, "--set", "generator.model.train_steps=8"]
+    assert main(["run", *longer, "--until", "train-generator"]) == 0
+    (extended,) = [m for m in map(read_manifest, stage_dir.iterdir()) if m is not None and m.key != short.key]
+    assert extended.meta["extended_from"] == short.key and extended.meta["resumed_from"] == 6
+    history = json.loads(extended.path("history").read_text())
+    assert [row["step"] for row in history][-1] == 8 and history[:3] == json.loads(short.path("history").read_text())
+    assert read_manifest(Path(short.folder)).hash == short.hash  # the shorter unit is left as it was
+    done = executions(workdir)
+    assert main(["run", *longer, "--until", "train-generator"]) == 0 and executions(workdir) == done  # cached

@@ -49,7 +49,7 @@ from components.generation.refine import (
     tau_at,
 )
 from components.generation.representation import from_representation, representation_dim, to_representation
-from components.generation.training import TrainResult, load_generator, train_generator
+from components.generation.training import TrainResult, extendable_step, load_generator, train_generator
 
 __all__ = [
     "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
@@ -60,5 +60,6 @@ __all__ = [
     "p_sample", "palm_direction", "palm_keypoint_indices", "penetration_energy", "q_sample", "refine_grasps",
     "refinement_energy", "refinement_problem", "representation_dim", "rotation_z", "sample", "solve_ik",
     "tau_at", "timestep_embedding", "to_representation", "train_diffusion", "yaw_of",
-    "GraspDataset", "TrainResult", "load_generator", "object_cloud", "posed_clouds", "scene_pivot", "train_generator",
+    "GraspDataset", "TrainResult", "extendable_step", "load_generator", "object_cloud", "posed_clouds", "scene_pivot",
+    "train_generator",
 ]

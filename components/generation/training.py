@@ -16,7 +16,8 @@ and resume (DESIGN §5.2)::
 * **Checkpoint.**  {format, version, model, optimizer, standardizer, step, history, running, config} written
   atomically (temp file + rename) every ``cfg.checkpoint_every`` steps and at the end.  Calling
   :func:`train_generator` again with the same path resumes from its step (a finished one returns at once);
-  ``train_steps`` may be raised to train on.  An unreadable file, or one trained with a different model
+  ``train_steps`` may be raised to train on (:func:`extendable_step` says whether a checkpoint can seed a
+  longer training).  An unreadable file, or one trained with a different model
   config, is a one-line error naming the file to delete.
 * **History.**  One row {step, loss (mean since the last row), seconds (of training, over
   all calls)} every ``cfg.log_every`` steps and at
@@ -109,6 +110,22 @@ def _check_same_model(saved: GeneratorConfig, cfg: GeneratorConfig, path: Path) 
     if changed:
         raise MultigraspError(f"generator checkpoint {path} was trained with a different generator config "
                               f"({', '.join(changed)}); delete it to retrain with the new one")
+
+
+def extendable_step(path: Path, cfg: GeneratorConfig) -> Optional[int]:
+    """The step of the checkpoint at ``path`` if training it on to ``cfg.train_steps`` is the same as training
+    ``cfg`` from scratch: its config equals ``cfg`` apart from :data:`RESUMABLE_FIELDS` and its step is at most
+    ``cfg.train_steps``.  None otherwise, or when the file is missing or unreadable (a search, not an error)."""
+    try:
+        state = load_checkpoint(path)
+        saved, step = _config_of(state, path), int(state["step"])
+    except (MultigraspError, KeyError, TypeError, ValueError):
+        return None
+    try:
+        _check_same_model(saved, cfg, path)
+    except MultigraspError:
+        return None
+    return step if step <= cfg.train_steps else None
 
 
 def _restore(model: GraspGenerator, state: dict, path: Path) -> None:
