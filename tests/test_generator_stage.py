@@ -120,18 +120,24 @@ def test_generator_ablations_list_the_papers_variants():
     assert list(eg.GENERATOR_ABLATIONS) == ["Ours", "Joint Angles", "w/o Obj Embd", "w/o Refinement"]
 
 
+def _tool_source_args(trained) -> list[str]:
+    """--profile / --workdir / --config / --set options of a benchmarks tool for the fixture's run."""
+    workdir, base, _, _ = trained
+    config = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--config"]
+    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", config[0]]
+    for i in range(len(base) - 1):
+        if base[i] == "--set":
+            argv += ["--set", base[i + 1]]
+    return argv
+
+
 def test_sampler_quality_tool_compares_settings_on_the_same_scenes(trained, tmp_path, capsys):
     from benchmarks import sampler_quality
 
-    workdir, base, _, _ = trained
     out = tmp_path / "sq.json"
-    config_args = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--config"]
-    sets = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--set"]
-    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", config_args[0], "--split", "Com",
+    argv = [*_tool_source_args(trained), "--split", "Com",
             "--variant", "paper=", "--variant", "fast=sampler.method=ddim,sampler.steps=5,refine.steps=2",
             "--set", "generator.eval_scenes=1", "--set", "generator.eval_grasps_per_scene=2", "--json", str(out)]
-    for item in sets:
-        argv += ["--set", item]
     assert sampler_quality.main(argv) == 0
     rows = {r["variant"]: r for r in json.loads(out.read_text())["rows"]}
     assert set(rows) == {"paper", "fast"} and rows["paper"]["n"] == rows["fast"]["n"] == 2
@@ -144,14 +150,8 @@ def test_sampler_quality_tool_compares_settings_on_the_same_scenes(trained, tmp_
 def test_generator_fidelity_tool_compares_samples_with_their_training_grasps(trained, tmp_path, capsys):
     from benchmarks import generator_fidelity
 
-    workdir, base, _, _ = trained
     out = tmp_path / "fidelity.json"
-    config_args = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--config"]
-    sets = [base[i + 1] for i in range(len(base) - 1) if base[i] == "--set"]
-    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", config_args[0], "--scenes", "1",
-            "--per-scene", "2", "--noise-steps", "3", "--json", str(out)]
-    for item in sets:
-        argv += ["--set", item]
+    argv = [*_tool_source_args(trained), "--scenes", "1", "--per-scene", "2", "--noise-steps", "3", "--json", str(out)]
     assert generator_fidelity.main(argv) == 0
     rows = {r["row"]: r for r in json.loads(out.read_text())["rows"]}
     T = 100  # the smoke profile's diffusion steps (GeneratorConfig default)
