@@ -20,7 +20,8 @@ such scenes, ``--per-scene`` accepted grasps each):
 Per row: mean PN (mm) and Q1 of the raw grasps (no refinement), the fraction with Q1 > 0, the mean wrist
 height in the palm-aligned frame (mm), the IK's mean keypoint error |FK(IK(x)) - x| (mm), and for the noised rows
 the mean keypoint distance (mm) between the denoised keypoints and those of the grasp they started from.  The model is the config's ``train-generator`` stage or
-``--checkpoint``; the grasps are the config's ``synthesize`` stage or ``--grasps``.
+``--checkpoint``; the grasps are the config's ``synthesize`` stage or ``--grasps``.  ``--scenes`` x ``--per-scene``
+bound the grasps measured (the shared ``--max-grasps`` option does not apply here).
 """
 
 from __future__ import annotations

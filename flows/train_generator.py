@@ -20,7 +20,8 @@ DESCRIPTION = "train the diffusion pre-grasp generator (31 palm-aligned keypoint
 def stage_spec(cfg: PipelineConfig, synthesis: Manifest, run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
     """Keyed by the model / data config and the synthesis output (training steps included: a longer
-    training is another unit; it starts from scratch -- resume is for a crashed unit)."""
+    training is another unit, which starts from the longest finished one on the same data, code and model --
+    ``tasks.generator.longest_finished_training`` -- rather than from step 0)."""
     return make_spec(stage=STAGE, unit="stage",
                      section_digest=section_digest(cfg, "generator.model", "generator.splits", "generator.records_source",
                                                    "generator.lowest_energy_per_scene", "hand", "objects"),

@@ -6,7 +6,8 @@ One unit, ``stage``: the palm-aligned dataset of the synthesis table's grasps of
 checkpoint ``generator.pt`` in the unit folder -- written every ``model.checkpoint_every`` steps, so a
 killed training resumes from the last checkpoint (and a finished one is served from cache) --
 ``history.json`` and ``loss.png``.  A longer training (``model.train_steps`` raised, nothing else of the model
-changed) starts from the longest finished one on the same data and code (:func:`longest_finished_training`;
+changed) starts from the longest finished one on the same data and code (:func:`longest_finished_training`,
+:func:`training_data_digest`;
 the manifest's ``meta.extended_from`` names it) instead of from step 0: same weights, less time.
 
 ``records_source='lowest_energy'`` (smoke profile only, like the specialists stage) trains on the
@@ -25,7 +26,7 @@ from pydantic import Field
 from components.config_base import Section
 from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
 from components.objects.config import ObjectsConfig
-from tasks.artifacts import Manifest, atomic_write_json, valid_manifest
+from tasks.artifacts import Manifest, atomic_write_json, digest, read_manifest, verify
 from tasks.grasp_tables import RecordsSource, grasp_rows
 from tasks.pointnet import plot_history
 from tasks.preflight import cache_dir
@@ -63,22 +64,31 @@ def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):
     return frame
 
 
-def longest_finished_training(folder: Path, synthesis: Manifest, code: str, cfg: GeneratorConfig
+def training_data_digest(stage: GeneratorStageConfig, objects: ObjectsConfig, hand_cfg) -> str:
+    """Digest of the config that decides what the generator is trained on besides the synthesis output: which
+    rows (``splits``, ``records_source``, ``lowest_energy_per_scene``), the hand (keypoints) and the objects
+    (clouds).  Stored in the manifest's meta as ``data``."""
+    return digest({"splits": list(stage.splits), "records_source": stage.records_source,
+                   "lowest_energy_per_scene": stage.lowest_energy_per_scene,
+                   "hand": hand_cfg.model_dump(mode="json"), "objects": objects.model_dump(mode="json")})
+
+
+def longest_finished_training(folder: Path, synthesis: Manifest, data: str, code: str, cfg: GeneratorConfig
                               ) -> tuple[Manifest, int] | None:
     """The finished ``train-generator`` unit beside ``folder`` (same stage directory) that a training of ``cfg``
-    can continue from -- same synthesis output, same code version, same generator config apart from
-    ``train_steps`` / ``log_every`` / ``checkpoint_every``, at most ``cfg.train_steps`` steps -- with the most
-    steps, and that step; None if there is none.  Since step s's minibatch, noise and timesteps depend only on
-    (seed, s) and the learning rate is constant, continuing it gives the weights of a training from scratch."""
+    can continue from -- same synthesis output, same training data config (``data``, :func:`training_data_digest`),
+    same code version, same generator config apart from ``train_steps`` / ``log_every`` / ``checkpoint_every``,
+    at most ``cfg.train_steps`` steps -- with the most steps, and that step; None if there is none.  Since step
+    s's minibatch, noise and timesteps depend only on (seed, s) and the learning rate is constant, continuing it
+    gives the weights of a training from scratch."""
     from components.generation import extendable_step
 
+    folder = Path(folder)
     best = None
-    for other in sorted(Path(folder).parent.iterdir()) if Path(folder).parent.is_dir() else []:
-        if other == Path(folder) or not other.is_dir():
-            continue
-        manifest = valid_manifest(other)
+    for other in sorted(folder.parent.iterdir()):
+        manifest = read_manifest(other) if other != folder and other.is_dir() else None
         if manifest is None or manifest.code_version != code or manifest.upstream.get("synthesize") != synthesis.hash \
-                or "generator" not in manifest.files:
+                or manifest.meta.get("data") != data or "generator" not in manifest.files or verify(manifest):
             continue
         step = extendable_step(manifest.path("generator"), cfg)
         if step is not None and (best is None or step > best[1]):
@@ -87,7 +97,7 @@ def longest_finished_training(folder: Path, synthesis: Manifest, code: str, cfg:
 
 
 def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, objects: ObjectsConfig, hand_cfg,
-               device: str, torch_threads: int, cache: Path, code: str = "") -> UnitOutput:
+               device: str, torch_threads: int, cache: Path, code: str) -> UnitOutput:
     import torch
 
     from components.generation import GraspDataset, train_generator
@@ -96,9 +106,9 @@ def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, o
 
     if torch_threads:
         torch.set_num_threads(torch_threads)
-    extended_from = ""
+    extended_from, data = "", training_data_digest(stage, objects, hand_cfg)
     if not (folder / "generator.pt").exists():  # no checkpoint of its own yet: continue a shorter finished training
-        found = longest_finished_training(folder, synthesis, code, stage.model)
+        found = longest_finished_training(folder, synthesis, data, code, stage.model)
         if found is not None:
             shutil.copyfile(found[0].path("generator"), folder / "generator.pt")
             extended_from = found[0].key
@@ -118,7 +128,7 @@ def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, o
     last = result.history[-1]["loss"] if result.history else float("nan")
     return UnitOutput(files={"generator": folder / "generator.pt", "history": history, "loss_plot": plot},
                       metrics={"grasps": len(dataset), "scenes": dataset.scenes, "loss_last": round(float(last), 6)},
-                      meta={"resumed_from": result.resumed_from, "extended_from": extended_from})
+                      meta={"resumed_from": result.resumed_from, "extended_from": extended_from, "data": data})
 
 
 @task(name="train-generator", cache_policy=VerifiedUnitCache(), persist_result=True)

@@ -38,11 +38,15 @@ def trained(tmp_path_factory):
     return workdir, base, first, executions(workdir)
 
 
+def _fixture_units(workdir: Path) -> list:
+    """The fixture's 6-step train-generator unit(s), not the longer ones a test below adds."""
+    units = [m for m in map(read_manifest, (workdir / "stages" / "train-generator").iterdir()) if m is not None]
+    return [m for m in units if json.loads(m.path("history").read_text())[-1]["step"] == 6]
+
+
 def test_train_generator_stage_writes_a_checkpoint_and_a_loss_curve(trained):
     workdir, _, first, again = trained
-    manifests = [m for m in map(read_manifest, (workdir / "stages" / "train-generator").iterdir())
-                 if m is not None and not m.meta.get("extended_from")]  # not the longer one of the test below
-    (manifest,) = manifests
+    (manifest,) = _fixture_units(workdir)
     history = json.loads(manifest.path("history").read_text())
     assert history[-1]["step"] == 6 and manifest.metrics["grasps"] >= 1
     assert manifest.path("loss_plot").is_file()
@@ -167,7 +171,7 @@ def test_generator_fidelity_tool_compares_samples_with_their_training_grasps(tra
 def test_a_longer_training_continues_the_finished_shorter_one(trained):
     workdir, base, first, _ = trained
     stage_dir = workdir / "stages" / "train-generator"
-    (short,) = [m for m in map(read_manifest, stage_dir.iterdir()) if m is not None and not m.meta.get("extended_from")]
+    (short,) = _fixture_units(workdir)
     longer = [*base, "--set", "generator.model.train_steps=8"]
     assert main(["run", *longer, "--until", "train-generator"]) == 0
     (extended,) = [m for m in map(read_manifest, stage_dir.iterdir()) if m is not None and m.key != short.key]
@@ -177,3 +181,10 @@ def test_a_longer_training_continues_the_finished_shorter_one(trained):
     assert read_manifest(Path(short.folder)).hash == short.hash  # the shorter unit is left as it was
     done = executions(workdir)
     assert main(["run", *longer, "--until", "train-generator"]) == 0 and executions(workdir) == done  # cached
+    # other training data (another split set), same model: trained from scratch, not continued
+    other = [*longer, "--set", "generator.splits=[train,Pl]"]
+    assert main(["run", *other, "--until", "train-generator"]) == 0
+    (fresh,) = [m for m in map(read_manifest, stage_dir.iterdir())
+                if m is not None and m.key not in (short.key, extended.key)]
+    assert fresh.meta["extended_from"] == "" and fresh.meta["resumed_from"] == 0
+    assert fresh.meta["data"] != extended.meta["data"] == short.meta["data"]
