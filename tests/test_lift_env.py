@@ -190,3 +190,77 @@ def test_bench_sim_writes_rates_ratio_and_physics_share(tmp_path):
         assert result[key] > 0
     assert result["substeps"] == 6 and result["overhead_ratio"] > 0
     assert 0.0 < result["physics_share"] < 1.0 and len(result["physics_share_runs"]) == 1
+
+
+def test_quaternion_helpers_match_the_matrix_definitions():
+    """The env's per-step Euler angles and rotation angles come from quaternions; they equal the matrix formulas."""
+    from components.execution.observations import euler_of_quat, quaternion_angle, rotation_angle
+
+    R = Rotation.random(256, random_state=2)
+    quats = R.as_quat()
+    assert np.allclose([euler_of_quat(q) for q in quats], euler_xyz(R.as_matrix()), atol=1e-12)
+    # also 1e-4 rad from pitch -90 deg, where PyBullet's getEulerFromQuaternion would snap the roll to 0
+    near = Rotation.from_euler("xyz", [0.7, -np.pi / 2 + 1e-4, 0.3])
+    assert np.allclose(euler_of_quat(near.as_quat()), [0.7, -np.pi / 2 + 1e-4, 0.3], atol=1e-9)
+    mats = R.as_matrix()
+    for k in range(0, 256, 2):
+        assert quaternion_angle(quats[k], quats[k + 1]) == pytest.approx(rotation_angle(mats[k], mats[k + 1]), abs=1e-7)
+    assert quaternion_angle(quats[0], quats[0]) == 0.0
+
+
+def test_joint_targets_follow_the_coupling_rule(env, record):
+    """set_action's plain-Python arithmetic equals ``coupled(targets + joint_delta_rad * clip(a))``."""
+    world = env.world
+    world.reset(record)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        before = world.targets.copy()
+        action = rng.uniform(-1.5, 1.5, 24).astype(np.float32)
+        force, torque = world.set_action(action)
+        clipped = np.clip(action.astype(np.float64), -1.0, 1.0)
+        expected = before.copy()
+        expected[world._actuated] += env.cfg.joint_delta_rad * clipped[:18]
+        assert np.array_equal(world.targets, world.coupled(expected))
+        assert np.allclose(force, env.cfg.max_base_force_n * clipped[18:21])
+        assert np.allclose(torque, env.cfg.max_base_torque_nm * clipped[21:])
+        assert np.array_equal(world.last_action, clipped)
+
+
+def test_physics_does_not_depend_on_when_features_are_computed(hand, library, record, tmp_path):
+    """Asking PyBullet for link frames with forward kinematics rewrites its cached link transforms, which the next
+    physics step uses: the world recomputes them on every read, so the point-cloud feature period (when the env asks
+    for link frames) leaves the motion unchanged."""
+    urdf = hand.export_urdf(tmp_path / "urdf")
+    lifts = []
+    for period in (1, 3):
+        environment = LiftEnv(hand, library, urdf, [record], LiftEnvConfig(feature_period=period),
+                              PointNetEncoder(PointNetConfig()).eval())
+        generator = torch.Generator().manual_seed(0)
+        td, run = environment.reset(), []
+        for _ in range(12):
+            td["action"] = torch.rand(24, generator=generator) * 2.0 - 1.0
+            td = environment.step(td)["next"]
+            run.append(environment.world.read().q.copy())
+        environment.close()
+        lifts.append(np.array(run))
+    assert np.array_equal(lifts[0], lifts[1])
+
+
+def test_world_state_arrays_match_pybullet(env, record):
+    """WorldState keeps PyBullet's tuples and builds its arrays on demand; they hold the same numbers."""
+    import pybullet as pb
+
+    env.reset()
+    state = env.world.read()
+    c = env.world.client
+    for j, body in enumerate(env.world.objects):
+        pos, quat = pb.getBasePositionAndOrientation(body, physicsClientId=c)
+        lin, ang = pb.getBaseVelocity(body, physicsClientId=c)
+        assert np.allclose(state.obj_pos[j], pos) and np.allclose(state.obj_rot[j], Rotation.from_quat(quat).as_matrix())
+        assert np.allclose(state.obj_lin_vel[j], lin) and np.allclose(state.obj_ang_vel[j], ang)
+    p, R = env.world.palm_pose()
+    assert np.allclose(state.palm_pos, p) and np.allclose(state.palm_rot, R)
+    pos_palm, rot_palm = state.objects_in_palm
+    assert np.allclose(pos_palm, (state.obj_pos - state.palm_pos) @ state.palm_rot, atol=1e-12)
+    assert np.allclose(rot_palm, state.palm_rot.T @ state.obj_rot, atol=1e-12)
+    assert np.array_equal(state.q, np.array(state.q_tuple))

@@ -49,7 +49,7 @@ class Episode:
 
     goal: Optional[Goal] = None
     start_heights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n_obj,) object heights at reset (m)
-    last_action: np.ndarray = field(default_factory=lambda: np.zeros(N_ACTIONS))  # (24,) clipped
+    last_action: list = field(default_factory=lambda: [0.0] * N_ACTIONS)  # (24,) as applied (clipped)
     features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.float32))  # (1 + n_obj, F)
     t: int = 0  # steps since reset
 
@@ -107,7 +107,7 @@ class LiftEnv(EnvBase):
 
     # ------------------------------------------------------------------ EnvBase
     def _update_features(self, state: WorldState) -> None:
-        clouds = self.featurizer.clouds(self.world.link_frames(), state.palm_pos, state.palm_rot,
+        clouds = self.featurizer.clouds(self.world.link_frames(state), state.palm_pos, state.palm_rot,
                                         self.world.record.scene.names, state.obj_pos, state.obj_rot)
         self.episode.features = self.featurizer.features(clouds)
 
@@ -137,7 +137,7 @@ class LiftEnv(EnvBase):
         ep.goal = Goal.from_state(state)
         self._observations.start(ep.goal)
         ep.start_heights = state.obj_pos[:, 2].copy()
-        ep.last_action = np.zeros(N_ACTIONS)
+        ep.last_action = [0.0] * N_ACTIONS
         ep.t = 0
         self._update_features(state)
         out = self._output(state, 0.0)
@@ -148,12 +148,12 @@ class LiftEnv(EnvBase):
         action = tensordict.get("action").detach().cpu().numpy()
         state = self.world.step(action)
         ep = self.episode
-        ep.last_action = np.minimum(np.maximum(action, -1.0), 1.0)
+        ep.last_action = self.world.last_action  # the action as applied, clipped to [-1, 1]
         ep.t += 1
         if ep.t % self.cfg.feature_period == 0:
             self._update_features(state)
         terms = reward_terms(self.cfg, state, ep.goal, ep.start_heights)
-        terminated = bool((state.obj_pos[:, 2] < self.cfg.fall_height_m).any())
+        terminated = any(pos[2] < self.cfg.fall_height_m for pos in state.obj_pos_tuples)
         truncated = ep.t >= self.cfg.max_steps
         return TensorDict(self._output(state, terms["lift"], terms["reward"], terminated, truncated),
                           batch_size=self.batch_size)

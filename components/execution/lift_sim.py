@@ -52,26 +52,102 @@ class GraspRecord:
 
 @dataclass
 class WorldState:
-    """Everything the observation and reward read after a step (palm frame = FK palm frame)."""
+    """Everything the observation and reward read after a step (palm frame = FK palm frame).
+
+    PyBullet gives poses and velocities as tuples; the state keeps them so (``*_tuple(s)``, quaternions (x, y, z, w))
+    and builds the arrays (``palm_pos``, ``palm_rot``, ``obj_pos``, ...) only when read: the observation and the
+    reward work on the tuples with Python floats and PyBullet's C helpers (~1 us a call), where each numpy call costs
+    5-30 us between physics steps (benchmarks/sim.py)."""
 
     q: np.ndarray  # (22,) joint angles
+    q_tuple: tuple  # the same as PyBullet's tuple (the reward's per-step sum runs on it)
     dq: np.ndarray  # (22,) joint velocities
     tau: np.ndarray  # (22,) applied motor torques
     tip_wrench: np.ndarray  # (5, 6) reaction force and torque at the joint of each fingertip link
-    palm_pos: np.ndarray  # (3,)
-    palm_rot: np.ndarray  # (3, 3)
-    palm_lin_vel: np.ndarray  # (3,)
-    palm_ang_vel: np.ndarray  # (3,)
-    obj_pos: np.ndarray  # (n_obj, 3) object origins (world)
-    obj_rot: np.ndarray  # (n_obj, 3, 3)
-    obj_lin_vel: np.ndarray  # (n_obj, 3)
-    obj_ang_vel: np.ndarray  # (n_obj, 3)
+    palm_pos_tuple: tuple  # (3,) palm frame origin (world)
+    palm_quat: tuple  # (4,) palm frame rotation
+    palm_vel_tuples: tuple  # ((3,), (3,)) linear and angular velocity of the hand's base (world)
+    obj_pos_tuples: tuple  # n_obj x (3,) object origins (world)
+    obj_quat: tuple  # n_obj x (4,)
+    obj_vel_tuples: tuple  # n_obj x ((3,), (3,)) linear and angular velocities (world)
+    #: PyBullet's ``getLinkStates`` of every hand link at this state (``LiftWorld.link_frames`` reads it), or None.
+    link_states: tuple | None = field(default=None, repr=False)
 
     @cached_property
+    def palm_pos(self) -> np.ndarray:
+        """(3,)"""
+        return np.array(self.palm_pos_tuple, dtype=np.float64)
+
+    @cached_property
+    def palm_rot(self) -> np.ndarray:
+        """(3, 3)"""
+        return np.array(pb.getMatrixFromQuaternion(self.palm_quat)).reshape(3, 3)
+
+    @cached_property
+    def palm_lin_vel(self) -> np.ndarray:
+        """(3,)"""
+        return np.array(self.palm_vel_tuples[0], dtype=np.float64)
+
+    @cached_property
+    def palm_ang_vel(self) -> np.ndarray:
+        """(3,)"""
+        return np.array(self.palm_vel_tuples[1], dtype=np.float64)
+
+    @cached_property
+    def obj_pos(self) -> np.ndarray:
+        """(n_obj, 3)"""
+        return np.array(self.obj_pos_tuples, dtype=np.float64).reshape(-1, 3)
+
+    @cached_property
+    def obj_rot(self) -> np.ndarray:
+        """(n_obj, 3, 3)"""
+        return quat_matrices(self.obj_quat).reshape(-1, 3, 3)
+
+    @cached_property
+    def obj_lin_vel(self) -> np.ndarray:
+        """(n_obj, 3)"""
+        return np.array([v[0] for v in self.obj_vel_tuples], dtype=np.float64).reshape(-1, 3)
+
+    @cached_property
+    def obj_ang_vel(self) -> np.ndarray:
+        """(n_obj, 3)"""
+        return np.array([v[1] for v in self.obj_vel_tuples], dtype=np.float64).reshape(-1, 3)
+
+    @cached_property
+    def palm_rot_tuple(self) -> tuple:
+        """palm_rot row-major as 9 floats (PyBullet's ``getMatrixFromQuaternion``, float64 exact)."""
+        return pb.getMatrixFromQuaternion(self.palm_quat)
+
+    @cached_property
+    def objects_in_palm_pose(self) -> tuple[tuple, tuple]:
+        """Each object's pose in the palm frame, computed once per state (observation and reward both read it):
+        p^palm = R_palm^T (p - p_palm),  q^palm = q_palm^-1 q.  -> (n_obj positions, n_obj quaternions), tuples.
+        Plain Python floats in float64 (PyBullet's ``multiplyTransforms`` / ``invertTransform`` round to float32)."""
+        r = self.palm_rot_tuple
+        px, py, pz = self.palm_pos_tuple
+        positions = []
+        for x, y, z in self.obj_pos_tuples:
+            dx, dy, dz = x - px, y - py, z - pz
+            positions.append((r[0] * dx + r[3] * dy + r[6] * dz, r[1] * dx + r[4] * dy + r[7] * dz,
+                              r[2] * dx + r[5] * dy + r[8] * dz))
+        return tuple(positions), tuple(quat_conj_mul(self.palm_quat, quat) for quat in self.obj_quat)
+
+    @property
     def objects_in_palm(self) -> tuple[np.ndarray, np.ndarray]:
-        """Objects in the palm frame, computed once per state (observation and reward both read them):
-        p^palm = R_palm^T (p - p_palm),  R^palm = R_palm^T R.   -> (n_obj, 3), (n_obj, 3, 3)."""
-        return (self.obj_pos - self.palm_pos) @ self.palm_rot, self.palm_rot.T @ self.obj_rot
+        """:attr:`objects_in_palm_pose` as arrays: p^palm (n_obj, 3) and R^palm = R_palm^T R (n_obj, 3, 3)."""
+        pos, quats = self.objects_in_palm_pose
+        return np.array(pos, dtype=np.float64).reshape(-1, 3), quat_matrices(quats).reshape(-1, 3, 3)
+
+
+def quat_conj_mul(a, b) -> tuple[float, float, float, float]:
+    """a^-1 b of unit quaternions (x, y, z, w) -- the rotation b seen from frame a -- in plain Python floats (float64;
+    a few dozen flops cost less than one numpy call)."""
+    px, py, pz, pw = -a[0], -a[1], -a[2], a[3]
+    bx, by, bz, bw = b
+    return (pw * bx + bw * px + py * bz - pz * by,
+            pw * by + bw * py + pz * bx - px * bz,
+            pw * bz + bw * pz + px * by - py * bx,
+            pw * bw - px * bx - py * by - pz * bz)
 
 
 def quat_matrices(quats) -> np.ndarray:
@@ -102,7 +178,9 @@ class LiftWorld:
         self._all_links = list(range(pb.getNumJoints(self.body, physicsClientId=c)))
         self._masses = np.array([pb.getDynamicsInfo(self.body, i, physicsClientId=c)[0] for i in [-1, *self._all_links]])
         self.mass = float(self._masses.sum())  # kg, the whole hand
+        self._link_masses = self._masses[1:].tolist()  # in _all_links order
         self._child_links = [i for i in self.link_index if i >= 0]
+        self._child_in_all = [self._all_links.index(i) for i in self._child_links]  # their rows in _all_links
         self._child_rows = np.flatnonzero(np.asarray(self.link_index) >= 0)  # rows of link_frames() they fill
         self._palm_rows = np.flatnonzero(np.asarray(self.link_index) < 0)
         for link in [-1, *self._child_links]:
@@ -126,6 +204,9 @@ class LiftWorld:
         self._offset = np.array([c.offset for c in couplings])
         self.lower, self.upper = (hand.joint_limits.detach().cpu().numpy().T.astype(np.float64))  # (22,) x2
         self._follower_lower, self._follower_upper = self.lower[self._follower], self.upper[self._follower]
+        # the same as Python lists, for set_action's per-step arithmetic
+        self._lower_list, self._upper_list, self._actuated_list = self.lower.tolist(), self.upper.tolist(), self._actuated.tolist()
+        self._coupling_list = list(zip(self._follower.tolist(), self._leader.tolist(), self._ratio.tolist(), self._offset.tolist()))
         self._motor_gains = dict(forces=[cfg.joint_max_force_nm] * len(self.joint_index),
                                  positionGains=[cfg.joint_position_gain] * len(self.joint_index),
                                  velocityGains=[cfg.joint_velocity_gain] * len(self.joint_index))
@@ -136,6 +217,8 @@ class LiftWorld:
         #: Wall seconds spent in :meth:`step`'s physics substeps (wrench + ``stepSimulation``) since construction;
         #: ``multigrasp bench sim`` divides its change by the env loop's time (``physics_share``).
         self.physics_seconds = 0.0
+        self._compensation: tuple | None = None  # (force, torque, base COM) of the last read() state
+        self.last_action = [0.0] * (N_JOINT_ACTIONS + N_WRENCH)  # the last action set_action applied, clipped to [-1, 1]
 
     # ------------------------------------------------------------------ reset
     def set_palm_pose(self, p: np.ndarray, R: np.ndarray) -> None:
@@ -188,46 +271,67 @@ class LiftWorld:
         self.targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper)
         self._send_targets()
 
-    def _send_targets(self) -> None:
-        pb.setJointMotorControlArray(self.body, self.joint_index, pb.POSITION_CONTROL, targetPositions=self.targets.tolist(),
+    def _send_targets(self, targets: list | None = None) -> None:
+        """Send the joint targets (``targets``, the same numbers as :attr:`targets` as a list, or :attr:`targets`)."""
+        pb.setJointMotorControlArray(self.body, self.joint_index, pb.POSITION_CONTROL,
+                                     targetPositions=self.targets.tolist() if targets is None else targets,
                                      physicsClientId=self.client, **self._motor_gains)
 
-    def set_action(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Apply the joint part of a (24,) action to the targets; return the base (force, torque) it asks for."""
-        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
-        q22 = self.targets.copy()
-        q22[self._actuated] += self.cfg.joint_delta_rad * a[:N_JOINT_ACTIONS]
-        self.targets = self.coupled(q22)
-        self._send_targets()
-        force = self.cfg.max_base_force_n * a[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3]
-        torque = self.cfg.max_base_torque_nm * a[N_JOINT_ACTIONS + 3:]
+    def set_action(self, action: np.ndarray) -> tuple[list, list]:
+        """Apply the joint part of a (24,) action to the targets; return the base (force, torque) it asks for.
+
+        The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]), done on
+        Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
+        a = [min(1.0, max(-1.0, x)) for x in np.asarray(action, dtype=np.float64).tolist()]
+        self.last_action = a
+        delta, lower, upper = self.cfg.joint_delta_rad, self._lower_list, self._upper_list
+        q = self.targets.tolist()
+        for i, k in enumerate(self._actuated_list):
+            q[k] += delta * a[i]
+        q = [min(hi, max(lo, x)) for x, lo, hi in zip(q, lower, upper)]
+        for follower, leader, ratio, offset in self._coupling_list:
+            q[follower] = min(upper[follower], max(lower[follower], offset + ratio * q[leader]))
+        self.targets = np.array(q)
+        self._send_targets(q)
+        force_scale, torque_scale = self.cfg.max_base_force_n, self.cfg.max_base_torque_nm
+        force = [force_scale * x for x in a[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3]]
+        torque = [torque_scale * x for x in a[N_JOINT_ACTIONS + 3:]]
         return force, torque
 
-    def _hand_com(self) -> tuple[np.ndarray, tuple]:
-        """Centre of mass of the whole hand (world) and the base's COM position (PyBullet's base position)."""
-        c = self.client
-        base = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0]
-        states = pb.getLinkStates(self.body, self._all_links, physicsClientId=c)  # [0]: link COM (world)
-        positions = np.array([base, *[s[0] for s in states]])
-        return self._masses @ positions / self.mass, base
-
-    def _weight_compensation(self) -> tuple[list, list, tuple]:
-        """(force, torque, point) that cancel the hand's weight now: the weight acts at the hand's COM, so
-        lifting it at the base COM needs the torque (com - base_com) x (0, 0, W) = W (dy, -dx, 0).  Zero
-        without ``gravity_compensation``."""
+    def _weight_compensation(self, base_com, link_states) -> tuple[list, list, tuple]:
+        """(force, torque, point) that cancel the hand's weight: the weight acts at the hand's COM, so lifting it
+        at the base COM ``base_com`` (PyBullet's base position) needs the torque (com - base_com) x (0, 0, W) =
+        W (dy, -dx, 0).  link_states: ``getLinkStates`` of every link ([0] = the link's COM, world).  Zero
+        without ``gravity_compensation``.  Plain Python sums: 25 terms cost less than one numpy call."""
         weight = self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0
-        com, base_com = self._hand_com()
-        dx, dy = float(com[0] - base_com[0]), float(com[1] - base_com[1])
+        x, y = self._masses[0] * base_com[0], self._masses[0] * base_com[1]
+        for mass, state in zip(self._link_masses, link_states):
+            x += mass * state[0][0]
+            y += mass * state[0][1]
+        dx, dy = x / self.mass - base_com[0], y / self.mass - base_com[1]
         return [0.0, 0.0, weight], [weight * dy, -weight * dx, 0.0], base_com
+
+    def _link_states(self) -> tuple:
+        """``getLinkStates`` of every hand link, forward kinematics recomputed (correct after a reset too)."""
+        return pb.getLinkStates(self.body, self._all_links, computeForwardKinematics=True, physicsClientId=self.client)
+
+    def _current_compensation(self) -> tuple[list, list, tuple]:
+        """The weight compensation of the current state: the one :meth:`read` computed when the hand's base has not
+        moved since (the state is the one it read), else computed afresh (someone stepped the client directly)."""
+        base = pb.getBasePositionAndOrientation(self.body, physicsClientId=self.client)[0]
+        cached = self._compensation
+        if cached is not None and cached[2] == base:
+            return cached
+        return self._weight_compensation(base, self._link_states())
 
     def step(self, action: np.ndarray) -> WorldState:
         """One environment step: set the action, then ``substeps`` physics steps with the base wrench
         (and the weight compensation, at the hand's centre of mass) applied at each."""
         force, torque = self.set_action(action)
         c = self.client
-        lift, lift_torque, base_com = self._weight_compensation()
-        total_force = [float(force[0]) + lift[0], float(force[1]) + lift[1], float(force[2]) + lift[2]]
-        total_torque = [float(torque[k]) + lift_torque[k] for k in range(3)]
+        lift, lift_torque, base_com = self._current_compensation()
+        total_force = [force[k] + lift[k] for k in range(3)]
+        total_torque = [torque[k] + lift_torque[k] for k in range(3)]
         start = time.perf_counter()
         for _ in range(self.cfg.substeps):
             pb.applyExternalForce(self.body, -1, total_force, base_com, pb.WORLD_FRAME, physicsClientId=c)
@@ -240,7 +344,8 @@ class LiftWorld:
         """n bare physics steps -- no action, no state reads, only the constant weight compensation force (the
         same physical input as a zero action): the benchmark's reference cost of the physics alone."""
         c = self.client
-        lift, torque, base_com = self._weight_compensation()
+        base = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0]
+        lift, torque, base_com = self._weight_compensation(base, self._link_states())
         for _ in range(n):
             pb.applyExternalForce(self.body, -1, lift, base_com, pb.WORLD_FRAME, physicsClientId=c)
             pb.applyExternalTorque(self.body, -1, torque, pb.WORLD_FRAME, physicsClientId=c)
@@ -254,33 +359,36 @@ class LiftWorld:
         return np.asarray(p), np.asarray(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
 
     def read(self) -> WorldState:
-        c = self.client
-        joints = pb.getJointStates(self.body, self.joint_index, physicsClientId=c)
-        q, dq, tau = np.array([(s[0], s[1], s[3]) for s in joints]).T
-        tip_wrench = np.array([joints[k][2] for k in self._tip_rows])  # (5, 6)
-        p, R = self.palm_pose()
-        lin, ang = pb.getBaseVelocity(self.body, physicsClientId=c)
-        poses = [pb.getBasePositionAndOrientation(body, physicsClientId=c) for body in self.objects]
-        velocities = [pb.getBaseVelocity(body, physicsClientId=c) for body in self.objects]
-        n = len(self.objects)
-        return WorldState(q=q, dq=dq, tau=tau, tip_wrench=tip_wrench, palm_pos=p, palm_rot=R,
-                          palm_lin_vel=np.asarray(lin), palm_ang_vel=np.asarray(ang),
-                          obj_pos=np.array([x[0] for x in poses]).reshape(n, 3),
-                          obj_rot=quat_matrices([x[1] for x in poses]).reshape(n, 3, 3),
-                          obj_lin_vel=np.array([v[0] for v in velocities]).reshape(n, 3),
-                          obj_ang_vel=np.array([v[1] for v in velocities]).reshape(n, 3))
+        """The state now, with every rotation also as a quaternion (:class:`WorldState`).  It also keeps the link states
+        and the weight compensation of this state, so that the next :meth:`step` and :meth:`link_frames` do not ask
+        PyBullet again.  One call per quantity, plain tuples where numpy's per-call cost would dominate."""
+        c, body = self.client, self.body
+        q, dq, reactions, tau = zip(*pb.getJointStates(body, self.joint_index, physicsClientId=c))
+        base_pos, base_orn = pb.getBasePositionAndOrientation(body, physicsClientId=c)
+        palm_pos, palm_quat = pb.multiplyTransforms(base_pos, base_orn, *self._inv_inertial)
+        lin, ang = pb.getBaseVelocity(body, physicsClientId=c)
+        links = self._link_states()
+        self._compensation = self._weight_compensation(base_pos, links)
+        poses = [pb.getBasePositionAndOrientation(b, physicsClientId=c) for b in self.objects]
+        velocities = [pb.getBaseVelocity(b, physicsClientId=c) for b in self.objects]
+        return WorldState(q=np.array(q), q_tuple=q, dq=np.array(dq), tau=np.array(tau),
+                          tip_wrench=np.array([reactions[k] for k in self._tip_rows]),  # (5, 6)
+                          palm_pos_tuple=palm_pos, palm_quat=palm_quat, palm_vel_tuples=(lin, ang),
+                          obj_pos_tuples=tuple(x[0] for x in poses), obj_quat=tuple(x[1] for x in poses),
+                          obj_vel_tuples=tuple(velocities), link_states=links)
 
-    def link_frames(self) -> np.ndarray:
-        """World frames (L, 4, 4) of the hand's links in ``HandModel.link_names`` order (the palm's = palm frame)."""
-        p, R = self.palm_pose()
-        states = pb.getLinkStates(self.body, self._child_links, computeForwardKinematics=True,
-                                  physicsClientId=self.client)
+    def link_frames(self, state: WorldState | None = None) -> np.ndarray:
+        """World frames (L, 4, 4) of the hand's links in ``HandModel.link_names`` order (the palm's = palm frame), of
+        ``state`` (from its ``link_states``, no PyBullet call) or of the client's current state."""
+        if state is None or state.link_states is None:
+            state = self.read()
+        links = state.link_states
         frames = np.zeros((len(self.link_index), 4, 4))
         frames[:, 3, 3] = 1.0
         child = self._child_rows
-        frames[child, :3, 3] = [st[4] for st in states]  # URDF link frame (world)
-        frames[child, :3, :3] = quat_matrices([st[5] for st in states])
-        frames[self._palm_rows, :3, :3], frames[self._palm_rows, :3, 3] = R, p
+        frames[child, :3, 3] = [links[k][4] for k in self._child_in_all]  # URDF link frame (world)
+        frames[child, :3, :3] = quat_matrices([links[k][5] for k in self._child_in_all])
+        frames[self._palm_rows, :3, :3], frames[self._palm_rows, :3, 3] = state.palm_rot, state.palm_pos
         return frames
 
     def close(self) -> None:
