@@ -1,5 +1,6 @@
 """PointNet encoder / autoencoder pretraining (components.execution.pointnet), with tiny configs."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -78,6 +79,11 @@ def test_fused_encoder_matches_the_frozen_encoder():
     assert fused(clouds).shape == (5, 64)
     with pytest.raises(ValueError, match="expects points"):
         fused(clouds[0])
+    # the numpy path the lift env uses: same numbers from float64 or float32 arrays
+    assert np.array_equal(fused.encode_numpy(clouds.numpy()), fused(clouds).numpy())
+    assert np.allclose(fused.encode_numpy(clouds.numpy().astype(np.float64)), expected.numpy(), atol=1e-5, rtol=1e-5)
+    with pytest.raises(ValueError, match="expects points"):
+        fused.encode_numpy(clouds[0].numpy())
 
 
 def test_chamfer_analytic():

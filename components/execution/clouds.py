@@ -16,7 +16,7 @@ import torch
 import trimesh
 
 from components.execution.lift_config import LiftEnvConfig
-from components.execution.pointnet import PointNetEncoder
+from components.execution.pointnet import FusedPointNetEncoder, PointNetEncoder
 from components.hand import HandModel
 from components.objects import ObjectLibrary
 from components.synthesis.energy import LARGE_HAND_GEOMS
@@ -69,11 +69,16 @@ class CloudFeaturizer:
             out[k] = (cloud - palm_pos) @ palm_rot
         return out
 
-    @torch.inference_mode()
     def features(self, clouds: np.ndarray) -> np.ndarray:
-        """encoder(clouds) (1 + n_obj, feature_dim) float32."""
-        out = self.encoder(torch.from_numpy(np.asarray(clouds, dtype=np.float32)))
+        """encoder(clouds) (1 + n_obj, feature_dim) float32.  The fused PointNet runs on the numpy arrays directly
+        (:meth:`FusedPointNetEncoder.encode_numpy`: no grad-mode switch, fewest torch calls); any other encoder
+        under ``torch.inference_mode``."""
+        if isinstance(self.encoder, FusedPointNetEncoder):
+            out = self.encoder.encode_numpy(clouds)
+        else:
+            with torch.inference_mode():
+                out = self.encoder(torch.from_numpy(np.asarray(clouds, dtype=np.float32))).cpu().numpy()
         if out.shape[-1] != self.cfg.feature_dim:
             raise ValueError(f"the point-cloud encoder gives {out.shape[-1]}-d features but lift.feature_dim is "
                              f"{self.cfg.feature_dim}; set lift.feature_dim to the encoder's output size")
-        return out.cpu().numpy().astype(np.float32)
+        return out.astype(np.float32, copy=False)

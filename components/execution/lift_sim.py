@@ -212,7 +212,7 @@ class LiftWorld:
                                  velocityGains=[cfg.joint_velocity_gain] * len(self.joint_index))
         self.objects: list[int] = []
         self._object_names: tuple[str, ...] = ()
-        self.targets = np.zeros(len(self.joint_index))  # (22,) current joint targets
+        self._targets: list = [0.0] * len(self.joint_index)  # (22,) current joint targets (:attr:`targets`)
         self.record: GraspRecord | None = None
         #: Wall seconds spent in :meth:`step`'s physics substeps (wrench + ``stepSimulation``) since construction;
         #: ``multigrasp bench sim`` divides its change by the env loop's time (``physics_share``).
@@ -244,7 +244,7 @@ class LiftWorld:
         q = np.asarray(record.q, dtype=np.float64)
         for index, angle in zip(self.joint_index, q):
             pb.resetJointState(self.body, index, float(angle), 0.0, physicsClientId=c)
-        self.targets = np.clip(q, self.lower, self.upper)
+        self._targets = np.clip(q, self.lower, self.upper).tolist()
         self._send_targets()
         self.record = record
         return self.read()
@@ -268,13 +268,17 @@ class LiftWorld:
 
     def set_joint_targets(self, q: np.ndarray) -> None:
         """Joint position targets (22,), clamped to the limits (reaching drives the fingers with them)."""
-        self.targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper)
+        self._targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper).tolist()
         self._send_targets()
 
-    def _send_targets(self, targets: list | None = None) -> None:
-        """Send the joint targets (``targets``, the same numbers as :attr:`targets` as a list, or :attr:`targets`)."""
-        pb.setJointMotorControlArray(self.body, self.joint_index, pb.POSITION_CONTROL,
-                                     targetPositions=self.targets.tolist() if targets is None else targets,
+    @property
+    def targets(self) -> np.ndarray:
+        """(22,) the current joint position targets (rad), in ``hand.joint_names`` order.  Kept as a list: the
+        per-step update is plain Python arithmetic (:meth:`set_action`)."""
+        return np.array(self._targets)
+
+    def _send_targets(self) -> None:
+        pb.setJointMotorControlArray(self.body, self.joint_index, pb.POSITION_CONTROL, targetPositions=self._targets,
                                      physicsClientId=self.client, **self._motor_gains)
 
     def set_action(self, action: np.ndarray) -> tuple[list, list]:
@@ -282,17 +286,18 @@ class LiftWorld:
 
         The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]), done on
         Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
-        a = [min(1.0, max(-1.0, x)) for x in np.asarray(action, dtype=np.float64).tolist()]
+        values = action.tolist() if isinstance(action, np.ndarray) else list(action)  # float32 -> float exactly
+        a = [min(1.0, max(-1.0, float(x))) for x in values]
         self.last_action = a
         delta, lower, upper = self.cfg.joint_delta_rad, self._lower_list, self._upper_list
-        q = self.targets.tolist()
+        q = list(self._targets)
         for i, k in enumerate(self._actuated_list):
             q[k] += delta * a[i]
         q = [min(hi, max(lo, x)) for x, lo, hi in zip(q, lower, upper)]
         for follower, leader, ratio, offset in self._coupling_list:
             q[follower] = min(upper[follower], max(lower[follower], offset + ratio * q[leader]))
-        self.targets = np.array(q)
-        self._send_targets(q)
+        self._targets = q
+        self._send_targets()
         force_scale, torque_scale = self.cfg.max_base_force_n, self.cfg.max_base_torque_nm
         force = [force_scale * x for x in a[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3]]
         torque = [torque_scale * x for x in a[N_JOINT_ACTIONS + 3:]]
@@ -340,16 +345,19 @@ class LiftWorld:
         self.physics_seconds += time.perf_counter() - start
         return self.read()
 
-    def step_raw(self, n: int) -> None:
+    def step_raw(self, n: int) -> float:
         """n bare physics steps -- no action, no state reads, only the constant weight compensation force (the
-        same physical input as a zero action): the benchmark's reference cost of the physics alone."""
+        same physical input as a zero action): the benchmark's reference cost of the physics alone.  -> the wall
+        seconds of the n steps (the compensation, computed once before them, is not counted)."""
         c = self.client
         base = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[0]
         lift, torque, base_com = self._weight_compensation(base, self._link_states())
+        start = time.perf_counter()
         for _ in range(n):
             pb.applyExternalForce(self.body, -1, lift, base_com, pb.WORLD_FRAME, physicsClientId=c)
             pb.applyExternalTorque(self.body, -1, torque, pb.WORLD_FRAME, physicsClientId=c)
             pb.stepSimulation(physicsClientId=c)
+        return time.perf_counter() - start
 
     # ------------------------------------------------------------------ state
     def palm_pose(self) -> tuple[np.ndarray, np.ndarray]:

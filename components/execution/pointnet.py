@@ -35,6 +35,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Literal, Optional, Union
 
+import numpy as np
 import torch
 from pydantic import Field, PositiveInt, ValidationError
 from torch import Tensor, nn
@@ -161,19 +162,36 @@ class FusedPointNetEncoder:
                     w, b = fuse_conv_bn_weights(w, b, following.running_mean, following.running_var, following.eps,
                                                 following.weight, following.bias)
                 self.layers.append((w.detach()[:, :, 0].T.contiguous(), b.detach().clone()))
+            # the input scaling folded into the first layer: (x / s) W = x (W / s)
+            first_w, first_b = self.layers[0]
+            self.layers[0] = ((first_w / encoder.input_scale).contiguous(), first_b)
         self.input_scale = encoder.input_scale
         self.feature_dim = encoder.feature_dim
 
     def __call__(self, points: Tensor) -> Tensor:
         """points (B, N, 3) in the palm frame (m)  ->  features (B, feature_dim); the
         :data:`components.execution.clouds.Encoder` interface.  No grad mode needed: the weights are detached
-        copies, so nothing is recorded (the featurizer's own ``inference_mode`` covers the env's calls)."""
+        copies, so nothing is recorded."""
         _check_points(points)
         batch, n = points.shape[:2]
-        h = points.reshape(batch * n, 3) / self.input_scale
+        h = points.reshape(batch * n, 3)
         for w, b in self.layers:
             h = torch.addmm(b, h, w).relu_()
         return h.reshape(batch, n, -1).amax(dim=1)
+
+    def encode_numpy(self, points: np.ndarray) -> np.ndarray:
+        """The same on numpy arrays (B, N, 3) -> (B, feature_dim) float32, with as few torch calls as possible: the
+        lift env calls it between PyBullet steps, where the first torch calls after the physics cost 15-70 us each
+        (a grad-mode switch, a reshape, a division each cost more than a small matrix product there; measured in
+        the benchmark's loop).  CPU weights only."""
+        points = np.asarray(points)
+        if points.ndim != 3 or points.shape[-1] != 3 or points.shape[1] == 0:
+            raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {points.shape}")
+        batch, n = points.shape[:2]
+        h = torch.from_numpy(np.ascontiguousarray(points.reshape(batch * n, 3), dtype=np.float32))
+        for w, b in self.layers:
+            h = torch.addmm(b, h, w).relu_()
+        return h.view(batch, n, -1).amax(dim=1).numpy()
 
 
 class PointDecoder(nn.Module):
