@@ -21,8 +21,9 @@ class LiftEnvConfig(Section):
         6, ge=1,
         description="Physics steps per environment step: the policy acts at physics_hz / substeps = 40 Hz.  Around "
         "the physics the env's own work (state reads, observation, features every feature_period steps, reward, "
-        "TorchRL) takes ~1 ms per env step between PyBullet steps, against 0.5-0.8 ms per physics step, so 6 substeps "
-        "give overhead_ratio 0.67-0.72 (benchmarks/sim.py, medians of 3 runs; 4 substeps gave 0.50-0.55).  Named "
+        "TorchRL) takes ~0.5 ms per env step between PyBullet steps, against 0.4-0.7 ms per physics step, so 6 substeps "
+        "give overhead_ratio ~0.78 (benchmarks/sim.py, median of 9 invocations, 0.745-0.804; 4 substeps gave 0.50-0.55 "
+        "with the env of the sixth session).  Named "
         "'substeps' and not 'frame_skip': an env attribute called frame_skip makes torchrl repeat steps.")
     solver_iterations: int = Field(50, ge=1, description="PyBullet constraint solver iterations per step (default 50).")
     gravity_compensation: bool = Field(
