@@ -264,3 +264,17 @@ def test_world_state_arrays_match_pybullet(env, record):
     assert np.allclose(pos_palm, (state.obj_pos - state.palm_pos) @ state.palm_rot, atol=1e-12)
     assert np.allclose(rot_palm, state.palm_rot.T @ state.obj_rot, atol=1e-12)
     assert np.array_equal(state.q, np.array(state.q_tuple))
+
+
+def test_a_goal_built_from_arrays_gives_the_same_reward(env):
+    """Goal's tuple and quaternion fields are derived from its arrays when not given."""
+    env.reset()
+    td = env.step(env.reset().set("action", torch.full((24,), 0.3)))["next"]
+    state = env.world.read()
+    goal = env.episode.goal
+    plain = Goal(q=goal.q, palm_rot=goal.palm_rot, obj_pos_palm=goal.obj_pos_palm, obj_rot_palm=goal.obj_rot_palm)
+    a = reward_terms(env.cfg, state, goal, env.episode.start_heights)
+    b = reward_terms(env.cfg, state, plain, env.episode.start_heights)
+    for name in ("r_rot", "r_joint", "r_object", "reward"):
+        assert a[name] == pytest.approx(b[name], abs=1e-9), name
+    assert td["reward"].shape == (1,)

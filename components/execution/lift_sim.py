@@ -178,7 +178,7 @@ class LiftWorld:
         self._all_links = list(range(pb.getNumJoints(self.body, physicsClientId=c)))
         self._masses = np.array([pb.getDynamicsInfo(self.body, i, physicsClientId=c)[0] for i in [-1, *self._all_links]])
         self.mass = float(self._masses.sum())  # kg, the whole hand
-        self._link_masses = self._masses[1:].tolist()  # in _all_links order
+        self._base_mass, self._link_masses = float(self._masses[0]), self._masses[1:].tolist()  # links in _all_links order
         self._child_links = [i for i in self.link_index if i >= 0]
         self._child_in_all = [self._all_links.index(i) for i in self._child_links]  # their rows in _all_links
         self._child_rows = np.flatnonzero(np.asarray(self.link_index) >= 0)  # rows of link_frames() they fill
@@ -309,7 +309,7 @@ class LiftWorld:
         W (dy, -dx, 0).  link_states: ``getLinkStates`` of every link ([0] = the link's COM, world).  Zero
         without ``gravity_compensation``.  Plain Python sums: 25 terms cost less than one numpy call."""
         weight = self.mass * GRAVITY if self.cfg.gravity_compensation else 0.0
-        x, y = self._masses[0] * base_com[0], self._masses[0] * base_com[1]
+        x, y = self._base_mass * base_com[0], self._base_mass * base_com[1]
         for mass, state in zip(self._link_masses, link_states):
             x += mass * state[0][0]
             y += mass * state[0][1]
@@ -317,7 +317,10 @@ class LiftWorld:
         return [0.0, 0.0, weight], [weight * dy, -weight * dx, 0.0], base_com
 
     def _link_states(self) -> tuple:
-        """``getLinkStates`` of every hand link, forward kinematics recomputed (correct after a reset too)."""
+        """``getLinkStates`` of every hand link with forward kinematics recomputed.  Without it PyBullet returns link
+        transforms that lag the joint state after ``stepSimulation`` (2-6 mm, measured); with it, it also rewrites the
+        cached transforms the next physics step starts from.  So every :meth:`read` asks this way, and the physics
+        does not depend on when else someone asks (the env's feature updates did, before; README, fifteenth session)."""
         return pb.getLinkStates(self.body, self._all_links, computeForwardKinematics=True, physicsClientId=self.client)
 
     def _current_compensation(self) -> tuple[list, list, tuple]:

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import N_JOINT_ACTIONS, N_WRENCH, WorldState, quat_conj_mul
@@ -102,17 +103,31 @@ class Goal:
     palm_rot: np.ndarray  # (3, 3)
     obj_pos_palm: np.ndarray  # (n_obj, 3)
     obj_rot_palm: np.ndarray  # (n_obj, 3, 3)
-    q_tuple: tuple = ()  # q as a tuple of floats
-    palm_quat: tuple = (0.0, 0.0, 0.0, 1.0)  # palm_rot as a PyBullet quaternion (x, y, z, w)
-    obj_quat_palm: tuple = ()  # obj_rot_palm as quaternions
-    obj_pos_palm_tuples: tuple = ()  # obj_pos_palm as tuples (the per-step arithmetic is plain Python)
+    # The same as tuples and quaternions for the per-step arithmetic in Python floats; derived from the arrays above
+    # when not given (from_state gives PyBullet's own numbers).
+    q_tuple: tuple = ()
+    palm_quat: tuple = ()  # (x, y, z, w)
+    obj_quat_palm: tuple = ()
+    obj_pos_palm_tuples: tuple = ()
+
+    def __post_init__(self) -> None:
+        if not self.q_tuple:
+            self.q_tuple = tuple(np.asarray(self.q, dtype=np.float64).tolist())
+        if not self.palm_quat:
+            self.palm_quat = tuple(Rotation.from_matrix(self.palm_rot).as_quat().tolist())
+        if len(self.obj_quat_palm) != len(self.obj_rot_palm):
+            self.obj_quat_palm = tuple(tuple(q) for q in Rotation.from_matrix(self.obj_rot_palm).as_quat().tolist()) \
+                if len(self.obj_rot_palm) else ()
+        if len(self.obj_pos_palm_tuples) != len(self.obj_pos_palm):
+            self.obj_pos_palm_tuples = tuple(tuple(p) for p in np.asarray(self.obj_pos_palm, dtype=np.float64).tolist())
 
     @classmethod
     def from_state(cls, state: WorldState) -> "Goal":
         pos, rot = state.objects_in_palm
         pos_tuples, quats = state.objects_in_palm_pose
-        return cls(q=state.q.copy(), q_tuple=tuple(state.q_tuple), palm_rot=state.palm_rot.copy(), obj_pos_palm=pos, obj_rot_palm=rot,
-                   palm_quat=tuple(state.palm_quat), obj_quat_palm=tuple(quats), obj_pos_palm_tuples=tuple(pos_tuples))
+        return cls(q=state.q.copy(), palm_rot=state.palm_rot.copy(), obj_pos_palm=pos, obj_rot_palm=rot,
+                   q_tuple=tuple(state.q_tuple), palm_quat=tuple(state.palm_quat), obj_quat_palm=tuple(quats),
+                   obj_pos_palm_tuples=tuple(pos_tuples))
 
 
 class ObservationBuilder:
