@@ -16,9 +16,10 @@ simulate the same motion.  Reported (medians over ``repeats``):
   chunks of ``CHUNK`` env steps, each chunk followed by ``CHUNK * substeps`` bare physics steps of the same world
   (hand hovering, objects at rest), the chunks' order alternating (env first, then bare first); the ratio is
   of the summed times.  The development machine's speed drifts by up to 2x within minutes, so an env run and a
-  bare run timed a second apart gave per-repeat ratios from 0.52 to 1.24 in one invocation (before this
-  interleaving, eleventh to fifteenth sessions); ~30 ms chunks see the same machine.  The env's first step after a
-  bare chunk asks PyBullet once more for the link states (the hand moved), a cost a plain rollout does not have;
+  bare run timed a second apart (the pairing used until the fifteenth session) gave per-repeat ratios from 0.52 to
+  1.24 in one invocation; ~30 ms chunks see the same machine (per-repeat ratios now span at most 0.08).  The env's
+  first step after a bare chunk asks PyBullet once more for the link states (the hand moved), a cost a plain
+  rollout does not have;
 * ``physics_share`` -- the fraction of the env's own wall time spent in its physics substeps (wrench +
   ``stepSimulation``, :attr:`LiftWorld.physics_seconds`), median over repeats: measured on the same steps, so
   no drift between two runs enters it.  It equals ``overhead_ratio`` when the physics runs as fast between
