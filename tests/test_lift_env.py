@@ -190,6 +190,7 @@ def test_bench_sim_writes_rates_ratio_and_physics_share(tmp_path):
         assert result[key] > 0
     assert result["substeps"] == 6 and result["overhead_ratio"] > 0
     assert 0.0 < result["physics_share"] < 1.0 and len(result["physics_share_runs"]) == 1
+    assert len(result["overhead_ratio_runs"]) == 1 and result["workload"]["chunk"] == 10  # interleaved chunks
 
 
 def test_quaternion_helpers_match_the_matrix_definitions():
@@ -231,7 +232,7 @@ def test_physics_does_not_depend_on_when_features_are_computed(hand, library, re
     physics step uses: the world recomputes them on every read, so the point-cloud feature period (when the env asks
     for link frames) leaves the motion unchanged."""
     urdf = hand.export_urdf(tmp_path / "urdf")
-    lifts = []
+    trajectories = []
     for period in (1, 3):
         environment = LiftEnv(hand, library, urdf, [record], LiftEnvConfig(feature_period=period),
                               PointNetEncoder(PointNetConfig()).eval())
@@ -242,8 +243,8 @@ def test_physics_does_not_depend_on_when_features_are_computed(hand, library, re
             td = environment.step(td)["next"]
             run.append(environment.world.read().q.copy())
         environment.close()
-        lifts.append(np.array(run))
-    assert np.array_equal(lifts[0], lifts[1])
+        trajectories.append(np.array(run))
+    assert np.array_equal(trajectories[0], trajectories[1])
 
 
 def test_world_state_arrays_match_pybullet(env, record):

@@ -81,7 +81,7 @@ class WorldState:
     @cached_property
     def palm_rot(self) -> np.ndarray:
         """(3, 3)"""
-        return np.array(pb.getMatrixFromQuaternion(self.palm_quat)).reshape(3, 3)
+        return np.array(self.palm_rot_tuple).reshape(3, 3)
 
     @cached_property
     def palm_lin_vel(self) -> np.ndarray:
@@ -205,8 +205,10 @@ class LiftWorld:
         self.lower, self.upper = (hand.joint_limits.detach().cpu().numpy().T.astype(np.float64))  # (22,) x2
         self._follower_lower, self._follower_upper = self.lower[self._follower], self.upper[self._follower]
         # the same as Python lists, for set_action's per-step arithmetic
-        self._lower_list, self._upper_list, self._actuated_list = self.lower.tolist(), self.upper.tolist(), self._actuated.tolist()
-        self._coupling_list = list(zip(self._follower.tolist(), self._leader.tolist(), self._ratio.tolist(), self._offset.tolist()))
+        self._lower_list, self._upper_list = self.lower.tolist(), self.upper.tolist()
+        self._actuated_list = self._actuated.tolist()
+        self._coupling_list = list(zip(self._follower.tolist(), self._leader.tolist(), self._ratio.tolist(),
+                                       self._offset.tolist()))
         self._motor_gains = dict(forces=[cfg.joint_max_force_nm] * len(self.joint_index),
                                  positionGains=[cfg.joint_position_gain] * len(self.joint_index),
                                  velocityGains=[cfg.joint_velocity_gain] * len(self.joint_index))
