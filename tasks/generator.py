@@ -124,7 +124,7 @@ def train_unit(folder: Path, synthesis: Manifest, stage: GeneratorStageConfig, o
 
     result = train_generator(dataset, stage.model, folder / "generator.pt", progress, device=device)
     history = atomic_write_json(folder / "history.json", result.history)
-    plot = plot_history(folder / "loss.png", result.history, ylabel="denoising loss (eps MSE)")
+    plot = plot_history(folder / "loss.png", result.history, ylabel=f"denoising loss ({stage.model.prediction} MSE)")
     last = result.history[-1]["loss"] if result.history else float("nan")
     return UnitOutput(files={"generator": folder / "generator.pt", "history": history, "loss_plot": plot},
                       metrics={"grasps": len(dataset), "scenes": dataset.scenes, "loss_last": round(float(last), 6)},

@@ -66,6 +66,17 @@ class GeneratorConfig(Section):
         description="beta_T of the linear schedule (SceneDiffuser: 0.01).  Note: with T = 100 this leaves "
         "alpha_bar_T = prod(1 - beta_t) ~ 0.60, so x_T still carries signal; sampling starts from N(0, I) anyway "
         "(as SceneDiffuser does) on data normalised to unit variance.")
+    zero_terminal_snr: bool = Field(
+        False,
+        description="Rescale the betas so that alpha_bar_T = 0 (Lin et al. 2024, 'Common diffusion noise schedules and "
+        "sample steps are flawed', Algorithm 1: sqrt(alpha_bar_t) shifted and scaled so its last value is 0 and its "
+        "first unchanged).  The last step then trains on pure noise, which is what sampling starts from; with the "
+        "paper's schedule (False) the model never sees a signal-free input.  Departs from the paper; needs "
+        "prediction='v' (x_0 cannot be read from a noise prediction at alpha_bar = 0).")
+    prediction: Literal["epsilon", "v"] = Field(
+        "epsilon",
+        description="What the denoiser is trained to output: 'epsilon' = the noise (paper / SceneDiffuser); 'v' = "
+        "sqrt(alpha_bar_t) eps - sqrt(1 - alpha_bar_t) x_0 (Salimans & Ho 2022), well defined at every noise level.")
     posterior_variance: Literal["posterior", "beta"] = Field(
         "posterior",
         description="Sigma_t^2 of the reverse step: 'posterior' = beta~_t = (1 - abar_{t-1}) / (1 - abar_t) beta_t, "
@@ -97,6 +108,8 @@ class GeneratorConfig(Section):
             raise ValueError("need sa2_points <= sa1_points <= points_per_object")
         if self.beta_end < self.beta_start:
             raise ValueError("beta_end must be >= beta_start")
+        if self.zero_terminal_snr and self.prediction != "v":
+            raise ValueError("zero_terminal_snr needs prediction='v' (set generator.model.prediction=v)")
         return self
 
 
@@ -110,6 +123,11 @@ class SamplerConfig(Section):
         25, ge=1, description="method=ddim: denoiser calls per sample (<= the model's diffusion_steps; every "
         "floor(T / steps)-th timestep; a larger value is read as T).  Each call costs the same, so sampling time "
         "scales with it.")
+    spacing: Literal["leading", "trailing"] = Field(
+        "leading",
+        description="method=ddim: which timesteps: 'leading' = 0, T/S, 2T/S, .. (the first step is below T-1); "
+        "'trailing' = .., T-1-T/S, T-1, which starts at the last training step (Lin et al. 2024; use it with a "
+        "zero_terminal_snr model, whose pure-noise input only that step was trained on).")
     eta: float = Field(
         0.0, ge=0.0, le=1.0, description="method=ddim: noise of each step, 0 = deterministic; 1 with steps = T is "
         "the ancestral DDPM.")

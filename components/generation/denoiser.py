@@ -1,5 +1,6 @@
 """Noise-prediction network eps_theta(H^(t), t, f_theta(O)) of the grasp generator (paper §"Multi-object
-Grasp Generation", after SceneDiffuser; DESIGN §5.2).
+Grasp Generation", after SceneDiffuser; DESIGN §5.2).  With ``prediction='v'`` the same network is trained to
+output v instead (diffusion module docstring); nothing here changes.
 
 * **Hand tokens.**  The (normalised) hand representation x_t (B, D) is cut into ``n_tokens`` tokens of
   ``token_dim`` numbers: 31 tokens of 3 for the keypoint representation (one token per keypoint, so

@@ -5,7 +5,10 @@ with diffusers' conventions: timesteps t = 0 .. T-1, beta_t linear from ``beta_s
     alpha_t = 1 - beta_t,   abar_t = prod_{s <= t} alpha_s,   abar_{-1} = 1
     forward:   q(x_t | x_0) = N(sqrt(abar_t) x_0, (1 - abar_t) I)                              (:func:`q_sample`)
     training:  L = E_{x_0, t, eps} |eps - eps_theta(x_t, t, O)|^2                              (:func:`diffusion_loss`)
+               or, with prediction = 'v', |v - v_theta|^2, v = sqrt(abar_t) eps - sqrt(1 - abar_t) x_0
     reverse:   x0^ = (x_t - sqrt(1 - abar_t) eps_theta) / sqrt(abar_t)
+               (v: x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v_theta, eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v_theta;
+               :func:`model_estimates`)
                mu_{t-1} = sqrt(abar_{t-1}) beta_t / (1 - abar_t) x0^ + sqrt(alpha_t) (1 - abar_{t-1}) / (1 - abar_t) x_t
                         (= (x_t - beta_t / sqrt(1 - abar_t) eps_theta) / sqrt(alpha_t) without clipping)
                x_{t-1} = mu_{t-1} + sigma_t z,  z ~ N(0, I) (z = 0 at t = 0),
@@ -17,7 +20,11 @@ with diffusers' conventions: timesteps t = 0 .. T-1, beta_t linear from ``beta_s
                abar_{t_{-1}} = 1 (the last step returns x0^); eta = 0 is deterministic  (:func:`ddim_sample`).
                The same trained eps-model serves both samplers.
 
-The model is any callable ``model(x_t (B, D), t (B,) long, cond) -> eps (B, D)``; ``cond`` is passed
+Zero terminal SNR (Lin et al. 2024, Algorithm 1; ``zero_terminal_snr``): sqrt(abar_t) of the linear schedule is
+shifted and scaled, s'_t = (s_t - s_{T-1}) s_0 / (s_0 - s_{T-1}), so that abar_{T-1} = 0 and abar_0 is unchanged;
+betas follow from the ratios abar_t / abar_{t-1} (beta_{T-1} = 1).  Needs v-prediction.
+
+The model is any callable ``model(x_t (B, D), t (B,) long, cond) -> eps (B, D)`` (or v (B, D) with prediction 'v'); ``cond`` is passed
 through untouched (the denoiser's encoded objects, or None).  Data are standardised per dimension by
 :class:`Standardizer` before diffusion (keypoints in metres are ~0.05 wide; the schedule assumes ~unit scale).
 """
@@ -47,18 +54,33 @@ def linear_beta_schedule(steps: int, beta_start: float, beta_end: float, dtype=t
     return torch.linspace(beta_start, beta_end, steps, dtype=dtype)
 
 
+def rescale_zero_terminal_snr(betas: Tensor) -> Tensor:
+    """Lin et al. 2024, Algorithm 1: betas whose sqrt(abar_t) is the given one's shifted to 0 at t = T-1 and
+    scaled back to its value at t = 0 (module docstring).   (T,) -> (T,), last entry 1."""
+    root = torch.cumprod(1.0 - betas, dim=0).sqrt()
+    first, last = root[0].clone(), root[-1].clone()
+    abar = ((root - last) * first / (first - last)).square()
+    alphas = torch.cat([abar[:1], abar[1:] / abar[:-1]])
+    return 1.0 - alphas
+
+
 class NoiseSchedule(nn.Module):
     """The DDPM constants of the module docstring as buffers (float64 on construction, follow ``.to()``):
     ``betas``, ``alphas``, ``alphas_cumprod`` (abar_t), ``alphas_cumprod_prev`` (abar_{t-1}),
     ``posterior_variance`` (beta~_t), all (T,)."""
 
-    def __init__(self, steps: int, beta_start: float, beta_end: float, variance: str = "posterior"):
+    def __init__(self, steps: int, beta_start: float, beta_end: float, variance: str = "posterior",
+                 zero_terminal_snr: bool = False, prediction: str = "epsilon"):
         super().__init__()
+        if zero_terminal_snr and prediction != "v":
+            raise ValueError("a zero-terminal-SNR schedule needs prediction='v'")
         betas = linear_beta_schedule(steps, beta_start, beta_end)
+        if zero_terminal_snr:
+            betas = rescale_zero_terminal_snr(betas)
         alphas = 1.0 - betas
         abar = torch.cumprod(alphas, dim=0)
         abar_prev = torch.cat([abar.new_ones(1), abar[:-1]])
-        self.steps, self.variance = steps, variance
+        self.steps, self.variance, self.prediction = steps, variance, prediction
         self.register_buffer("betas", betas)
         self.register_buffer("alphas", alphas)
         self.register_buffer("alphas_cumprod", abar)
@@ -67,7 +89,8 @@ class NoiseSchedule(nn.Module):
 
     @classmethod
     def from_config(cls, cfg: GeneratorConfig) -> "NoiseSchedule":
-        return cls(cfg.diffusion_steps, cfg.beta_start, cfg.beta_end, cfg.posterior_variance)
+        return cls(cfg.diffusion_steps, cfg.beta_start, cfg.beta_end, cfg.posterior_variance, cfg.zero_terminal_snr,
+                   cfg.prediction)
 
     def at(self, name: str, t: Tensor, like: Tensor) -> Tensor:
         """Schedule constant ``name`` at timesteps t (B,), shaped to broadcast against ``like`` (B, ...)."""
@@ -82,14 +105,22 @@ def q_sample(schedule: NoiseSchedule, x0: Tensor, t: Tensor, noise: Tensor) -> T
     return abar.sqrt() * x0 + (1.0 - abar).sqrt() * noise
 
 
+def velocity(schedule: NoiseSchedule, x0: Tensor, t: Tensor, noise: Tensor) -> Tensor:
+    """v = sqrt(abar_t) eps - sqrt(1 - abar_t) x_0 (Salimans & Ho 2022).   (B, D) -> (B, D)."""
+    abar = schedule.at("alphas_cumprod", t, x0)
+    return abar.sqrt() * noise - (1.0 - abar).sqrt() * x0
+
+
 def diffusion_loss(model: EpsModel, schedule: NoiseSchedule, x0: Tensor, cond: Any,
                    generator: Optional[torch.Generator] = None) -> Tensor:
-    """epsilon-prediction loss  L = mean over batch and dims of (eps - eps_theta(x_t, t, cond))^2 with
-    t ~ U{0..T-1} and eps ~ N(0, I) per row.   x0 (B, D) -> scalar."""
+    """Denoising loss  L = mean over batch and dims of (target - model(x_t, t, cond))^2 with t ~ U{0..T-1} and
+    eps ~ N(0, I) per row; target = eps, or v (:func:`velocity`) when ``schedule.prediction == 'v'``.
+    x0 (B, D) -> scalar."""
     gen_device = generator.device if generator is not None else x0.device
     t = torch.randint(schedule.steps, (x0.shape[0],), generator=generator, device=gen_device).to(x0.device)
     noise = torch.randn(x0.shape, generator=generator, device=gen_device, dtype=x0.dtype).to(x0.device)
-    return (model(q_sample(schedule, x0, t, noise), t, cond) - noise).square().mean()
+    target = velocity(schedule, x0, t, noise) if schedule.prediction == "v" else noise
+    return (model(q_sample(schedule, x0, t, noise), t, cond) - target).square().mean()
 
 
 # ============================================================================ reverse process
@@ -97,6 +128,15 @@ def predict_x0(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, eps: Tensor) -> 
     """x0^ = (x_t - sqrt(1 - abar_t) eps) / sqrt(abar_t).   (B, D) -> (B, D)."""
     abar = schedule.at("alphas_cumprod", t, x_t)
     return (x_t - (1.0 - abar).sqrt() * eps) / abar.sqrt()
+
+
+def model_estimates(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, output: Tensor) -> tuple[Tensor, Tensor]:
+    """(x0^, eps^) from the model's output at x_t: the noise (prediction 'epsilon', :func:`predict_x0`) or v
+    (x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v, eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v).   (B, D) each."""
+    if schedule.prediction != "v":
+        return predict_x0(schedule, x_t, t, output), output
+    abar = schedule.at("alphas_cumprod", t, x_t)
+    return abar.sqrt() * x_t - (1.0 - abar).sqrt() * output, (1.0 - abar).sqrt() * x_t + abar.sqrt() * output
 
 
 def posterior_mean(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, x0: Tensor) -> Tensor:
@@ -112,7 +152,7 @@ def p_sample(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, cond
     """One ancestral step x_t -> x_{t-1} = mu_{t-1} + sigma_t z (module docstring); no noise at t = 0.
     ``clip`` > 0 clamps x0^ to [-clip, clip] first.   x_t (B, D) -> (B, D)."""
     tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
-    x0 = predict_x0(schedule, x_t, tt, model(x_t, tt, cond))
+    x0, _ = model_estimates(schedule, x_t, tt, model(x_t, tt, cond))
     if clip > 0.0:
         x0 = x0.clamp(-clip, clip)
     mean = posterior_mean(schedule, x_t, tt, x0)
@@ -148,11 +188,16 @@ def denoise_from(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, 
     return x
 
 
-def ddim_timesteps(train_steps: int, sampling_steps: int) -> list[int]:
-    """The S timesteps of the strided sampler, t_i = i floor(T / S), i = 0 .. S-1 (diffusers' "leading"
-    spacing; S = T gives every step).   -> ascending list of S ints."""
+def ddim_timesteps(train_steps: int, sampling_steps: int, spacing: str = "leading") -> list[int]:
+    """The S timesteps of the strided sampler (S = T gives every step), as diffusers spaces them:
+    'leading' t_i = i floor(T / S), i = 0 .. S-1 (the first sampled step is below T-1); 'trailing'
+    t_i = round(T - (S-1-i) T / S) - 1, which starts at t = T-1 (Lin et al. 2024: with a zero-terminal-SNR schedule
+    only that step sees pure noise).   -> ascending list of S ints."""
     if not 1 <= sampling_steps <= train_steps:
         raise ValueError(f"sampling_steps must be in 1 .. {train_steps} (the schedule's T), got {sampling_steps}")
+    if spacing == "trailing":
+        return [round(train_steps - (sampling_steps - 1 - i) * train_steps / sampling_steps) - 1
+                for i in range(sampling_steps)]
     stride = train_steps // sampling_steps
     return [i * stride for i in range(sampling_steps)]
 
@@ -162,8 +207,7 @@ def ddim_step(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, t_p
               generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
     """One DDIM step x_t -> x_{t_prev} (module docstring; t_prev = -1: abar = 1, returns x0^).   (B, D) -> (B, D)."""
     tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
-    eps = model(x_t, tt, cond)
-    x0 = predict_x0(schedule, x_t, tt, eps)
+    x0, eps = model_estimates(schedule, x_t, tt, model(x_t, tt, cond))
     if clip > 0.0:
         x0 = x0.clamp(-clip, clip)
         abar_t = schedule.at("alphas_cumprod", tt, x_t)
@@ -183,13 +227,13 @@ def ddim_step(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, t_p
 @torch.no_grad()
 def ddim_sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], cond: Any, steps: int,
                 eta: float = 0.0, generator: Optional[torch.Generator] = None, clip: float = 0.0, device=None,
-                dtype=torch.float32) -> Tensor:
+                dtype=torch.float32, spacing: str = "leading") -> Tensor:
     """Strided sampling: x_{t_{S-1}} ~ N(0, I) of ``shape`` (B, D), then :func:`ddim_step` down the
-    :func:`ddim_timesteps`.  -> x_0 (B, D)."""
+    :func:`ddim_timesteps` (``spacing``).  -> x_0 (B, D)."""
     device = torch.device(device) if device is not None else schedule.betas.device
     gen_device = generator.device if generator is not None else device
     x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
-    timesteps = ddim_timesteps(schedule.steps, steps)
+    timesteps = ddim_timesteps(schedule.steps, steps, spacing)
     for i in reversed(range(len(timesteps))):
         x = ddim_step(model, schedule, x, timesteps[i], timesteps[i - 1] if i > 0 else -1, cond, eta, generator, clip)
     return x

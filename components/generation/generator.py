@@ -25,7 +25,7 @@ from components.hand import HandModel
 
 
 class GraspGenerator(nn.Module):
-    """eps-model, schedule and standardiser of one representation (module docstring)."""
+    """Denoiser (eps- or v-model), schedule and standardiser of one representation (module docstring)."""
 
     def __init__(self, cfg: GeneratorConfig):
         super().__init__()
@@ -35,7 +35,7 @@ class GraspGenerator(nn.Module):
         self.standardizer = Standardizer(representation_dim(cfg.representation))
 
     def loss(self, x0: Tensor, objects: ObjectInputs, generator: Optional[torch.Generator] = None) -> Tensor:
-        """epsilon-MSE of raw (palm-aligned) representations x0 (B, D) given their object clouds."""
+        """Denoising MSE (epsilon or v, ``cfg.prediction``) of raw (palm-aligned) representations x0 (B, D) given their object clouds."""
         return diffusion_loss(self.denoiser, self.schedule, self.standardizer.normalize(x0), objects, generator)
 
     @torch.no_grad()
@@ -50,7 +50,7 @@ class GraspGenerator(nn.Module):
         where = {"device": objects.clouds.device, "dtype": objects.clouds.dtype}
         if sampler.method == "ddim":
             z = ddim_sample(self.denoiser, self.schedule, shape, context, min(sampler.steps, self.schedule.steps),
-                            sampler.eta, generator, clip=self.cfg.clip_sample, **where)
+                            sampler.eta, generator, clip=self.cfg.clip_sample, spacing=sampler.spacing, **where)
         else:
             z = sample(self.denoiser, self.schedule, shape, context, generator, clip=self.cfg.clip_sample, **where)
         return self.standardizer.denormalize(z)
