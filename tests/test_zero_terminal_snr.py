@@ -46,7 +46,8 @@ def test_rescaled_schedule_ends_at_zero_snr_and_keeps_the_first_step():
     assert float(zero.betas[-1]) == pytest.approx(1.0)
     torch.testing.assert_close(zero.alphas_cumprod[0], plain.alphas_cumprod[0])
     # sqrt(abar) is an affine map of the linear schedule's: s' = (s - s_T) s_0 / (s_0 - s_T)
-    s, s0, sT = plain.alphas_cumprod.sqrt(), float(plain.alphas_cumprod[0]) ** 0.5, float(plain.alphas_cumprod[-1]) ** 0.5
+    s = plain.alphas_cumprod.sqrt()
+    s0, sT = float(s[0]), float(s[-1])
     torch.testing.assert_close(zero.alphas_cumprod.sqrt(), (s - sT) * s0 / (s0 - sT))
     assert bool((zero.betas > 0).all()) and bool((zero.betas <= 1).all())
     assert bool((zero.alphas_cumprod[1:] < zero.alphas_cumprod[:-1]).all())  # strictly less signal at every step

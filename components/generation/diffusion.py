@@ -7,8 +7,8 @@ with diffusers' conventions: timesteps t = 0 .. T-1, beta_t linear from ``beta_s
     training:  L = E_{x_0, t, eps} |eps - eps_theta(x_t, t, O)|^2                              (:func:`diffusion_loss`)
                or, with prediction = 'v', |v - v_theta|^2, v = sqrt(abar_t) eps - sqrt(1 - abar_t) x_0
     reverse:   x0^ = (x_t - sqrt(1 - abar_t) eps_theta) / sqrt(abar_t)
-               (v: x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v_theta, eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v_theta;
-               :func:`model_estimates`)
+               (v: x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v_theta,
+                   eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v_theta;  :func:`model_estimates`)
                mu_{t-1} = sqrt(abar_{t-1}) beta_t / (1 - abar_t) x0^ + sqrt(alpha_t) (1 - abar_{t-1}) / (1 - abar_t) x_t
                         (= (x_t - beta_t / sqrt(1 - abar_t) eps_theta) / sqrt(alpha_t) without clipping)
                x_{t-1} = mu_{t-1} + sigma_t z,  z ~ N(0, I) (z = 0 at t = 0),
@@ -24,9 +24,10 @@ Zero terminal SNR (Lin et al. 2024, Algorithm 1; ``zero_terminal_snr``): sqrt(ab
 shifted and scaled, s'_t = (s_t - s_{T-1}) s_0 / (s_0 - s_{T-1}), so that abar_{T-1} = 0 and abar_0 is unchanged;
 betas follow from the ratios abar_t / abar_{t-1} (beta_{T-1} = 1).  Needs v-prediction.
 
-The model is any callable ``model(x_t (B, D), t (B,) long, cond) -> eps (B, D)`` (or v (B, D) with prediction 'v'); ``cond`` is passed
-through untouched (the denoiser's encoded objects, or None).  Data are standardised per dimension by
-:class:`Standardizer` before diffusion (keypoints in metres are ~0.05 wide; the schedule assumes ~unit scale).
+The model is any callable ``model(x_t (B, D), t (B,) long, cond) -> eps (B, D)`` (or v (B, D) with prediction
+'v'); ``cond`` is passed through untouched (the denoiser's encoded objects, or None).  Data are standardised
+per dimension by :class:`Standardizer` before diffusion (keypoints in metres are ~0.05 wide; the schedule
+assumes ~unit scale).
 """
 
 from __future__ import annotations
@@ -132,7 +133,8 @@ def predict_x0(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, eps: Tensor) -> 
 
 def model_estimates(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, output: Tensor) -> tuple[Tensor, Tensor]:
     """(x0^, eps^) from the model's output at x_t: the noise (prediction 'epsilon', :func:`predict_x0`) or v
-    (x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v, eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v).   (B, D) each."""
+    (x0^ = sqrt(abar_t) x_t - sqrt(1 - abar_t) v, eps^ = sqrt(1 - abar_t) x_t + sqrt(abar_t) v).
+    (B, D) each."""
     if schedule.prediction != "v":
         return predict_x0(schedule, x_t, t, output), output
     abar = schedule.at("alphas_cumprod", t, x_t)

@@ -35,7 +35,8 @@ class GraspGenerator(nn.Module):
         self.standardizer = Standardizer(representation_dim(cfg.representation))
 
     def loss(self, x0: Tensor, objects: ObjectInputs, generator: Optional[torch.Generator] = None) -> Tensor:
-        """Denoising MSE (epsilon or v, ``cfg.prediction``) of raw (palm-aligned) representations x0 (B, D) given their object clouds."""
+        """Denoising MSE (epsilon or v, ``cfg.prediction``) of raw (palm-aligned) representations x0 (B, D)
+        given their object clouds."""
         return diffusion_loss(self.denoiser, self.schedule, self.standardizer.normalize(x0), objects, generator)
 
     @torch.no_grad()

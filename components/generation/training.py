@@ -4,8 +4,8 @@ and resume (DESIGN §5.2)::
     result = train_generator(dataset, cfg, Path("generator.pt"), progress=print)
     model = load_generator(Path("generator.pt"))          # ready to sample / generate_grasps
 
-* **Loss.**  AdamW (``cfg.lr``, ``cfg.weight_decay``) on :meth:`GraspGenerator.loss` (epsilon- or v-MSE, ``cfg.prediction``, of the
-  standardised representation), gradients clipped to ``cfg.grad_clip``.
+* **Loss.**  AdamW (``cfg.lr``, ``cfg.weight_decay``) on :meth:`GraspGenerator.loss` (epsilon- or v-MSE,
+  ``cfg.prediction``, of the standardised representation), gradients clipped to ``cfg.grad_clip``.
 * **Standardiser.**  Fitted once on all of the dataset's x_0 before the first step, then kept (it is part
   of the model's state and is also stored on its own in the checkpoint).
 * **Randomness.**  Weights are initialised under ``torch.manual_seed(cfg.seed)``; step s draws its minibatch
