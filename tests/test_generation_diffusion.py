@@ -1,5 +1,5 @@
-"""DDPM: closed-form schedule, forward process, and a tiny model learning a 2-D two-cluster distribution;
-palm alignment about z."""
+"""DDPM: closed-form schedule, forward process, and a tiny model learning a 2-D two-cluster distribution (with
+the paper's schedule and epsilon, and with the zero-terminal-SNR schedule and v); palm alignment about z."""
 
 import math
 
@@ -11,6 +11,7 @@ from components.generation import (
     AlignedFrame,
     GeneratorConfig,
     NoiseSchedule,
+    ddim_sample,
     palm_direction,
     q_sample,
     sample,
@@ -61,11 +62,13 @@ class ToyEps(nn.Module):
         return self.net(torch.cat([x, phase.sin(), phase.cos()], dim=-1))
 
 
-def test_tiny_ddpm_trained_on_two_clusters_samples_both_clusters():
+@pytest.mark.parametrize("options", [{}, {"zero_terminal_snr": True, "prediction": "v"}],
+                         ids=["paper-epsilon", "zero-snr-v"])
+def test_tiny_ddpm_trained_on_two_clusters_samples_both_clusters(options):
     torch.manual_seed(0)
-    cfg = GeneratorConfig(lr=3e-3, batch_size=256, seed=0, log_every=100)
+    cfg = GeneratorConfig(lr=3e-3, batch_size=256, seed=0, log_every=100, **options)
     schedule = NoiseSchedule.from_config(cfg)
-    model = ToyEps()
+    model = ToyEps()  # with prediction 'v' the same network learns v
 
     def batch(step, generator):
         which = torch.randint(2, (cfg.batch_size,), generator=generator)
@@ -73,12 +76,16 @@ def test_tiny_ddpm_trained_on_two_clusters_samples_both_clusters():
 
     history = train_diffusion(model, schedule, batch, cfg, steps=400)
     assert history[-1]["loss"] < history[0]["loss"]
-    x = sample(model, schedule, (1000, 2), None, torch.Generator().manual_seed(1))
-    nearest = torch.cdist(x, CENTRES).min(-1)
-    share = (nearest.indices == 0).float().mean()
-    assert 0.3 < float(share) < 0.7  # both modes, roughly balanced
-    assert float((nearest.values < 0.6).float().mean()) > 0.8  # most samples land on a cluster
-    assert torch.allclose(x.mean(0), CENTRES.mean(0), atol=0.4)
+    samples = [sample(model, schedule, (1000, 2), None, torch.Generator().manual_seed(1))]
+    if options:
+        samples.append(ddim_sample(model, schedule, (1000, 2), None, 25, generator=torch.Generator().manual_seed(1),
+                                   spacing="trailing"))
+    for x in samples:
+        nearest = torch.cdist(x, CENTRES).min(-1)
+        share = (nearest.indices == 0).float().mean()
+        assert 0.3 < float(share) < 0.7  # both modes, roughly balanced
+        assert float((nearest.values < 0.6).float().mean()) > 0.8  # most samples land on a cluster
+        assert torch.allclose(x.mean(0), CENTRES.mean(0), atol=0.4)
 
 
 def test_palm_alignment_round_trip_and_the_aligned_palm_points_along_plus_x():

@@ -1,13 +1,11 @@
 """Zero-terminal-SNR schedule and v-prediction (components.generation.diffusion) against analytic answers:
 the rescaled schedule's ends, the exact v-model of a one-point distribution lands on it with every sampler,
-the trailing DDIM spacing, the config rule, and a tiny model trained with v on two clusters."""
-
-import math
+the trailing DDIM spacing, the config rule (the two-cluster toy training with v is in
+test_generation_diffusion.py)."""
 
 import pytest
 import torch
 from pydantic import ValidationError
-from torch import nn
 
 from components.generation import (
     GeneratorConfig,
@@ -20,7 +18,6 @@ from components.generation import (
     diffusion_loss,
     q_sample,
     sample,
-    train_diffusion,
 )
 from components.generation.diffusion import model_estimates, velocity
 
@@ -107,39 +104,6 @@ def test_v_loss_is_zero_for_the_exact_model_and_positive_for_the_noise_model():
         return (x - abar.sqrt() * TARGET) / (1.0 - abar).sqrt()
 
     assert float(diffusion_loss(exact_eps, noise_model, x0, None, torch.Generator().manual_seed(0))) < 1e-20
-
-
-class ToyV(nn.Module):
-    """v(x_t, t) for 2-D data: an MLP on [x_t, sin/cos(t)]."""
-
-    def __init__(self):
-        super().__init__()
-        self.net = nn.Sequential(nn.Linear(4, 128), nn.SiLU(), nn.Linear(128, 128), nn.SiLU(), nn.Linear(128, 2))
-
-    def forward(self, x, t, cond):
-        phase = t.float().unsqueeze(-1) / 100.0 * math.pi
-        return self.net(torch.cat([x, phase.sin(), phase.cos()], dim=-1))
-
-
-def test_tiny_v_model_on_a_zero_snr_schedule_samples_both_clusters():
-    centres, spread = torch.tensor([[-2.0, 0.0], [2.0, 1.0]]), 0.15
-    torch.manual_seed(0)
-    cfg = GeneratorConfig(lr=3e-3, batch_size=256, seed=0, log_every=100, zero_terminal_snr=True, prediction="v")
-    schedule = NoiseSchedule.from_config(cfg)
-    model = ToyV()
-
-    def batch(step, generator):
-        which = torch.randint(2, (cfg.batch_size,), generator=generator)
-        return centres[which] + spread * torch.randn(cfg.batch_size, 2, generator=generator), None
-
-    history = train_diffusion(model, schedule, batch, cfg, steps=400)
-    assert history[-1]["loss"] < history[0]["loss"]
-    for x in (sample(model, schedule, (1000, 2), None, torch.Generator().manual_seed(1)),
-              ddim_sample(model, schedule, (1000, 2), None, 25, generator=torch.Generator().manual_seed(1),
-                          spacing="trailing")):
-        nearest = torch.cdist(x, centres).min(-1)
-        assert 0.3 < float((nearest.indices == 0).float().mean()) < 0.7  # both modes, roughly balanced
-        assert float((nearest.values < 0.6).float().mean()) > 0.8  # most samples land on a cluster
 
 
 def test_generator_with_v_prediction_trains_a_step_and_samples_finite():
