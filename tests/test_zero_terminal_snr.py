@@ -89,6 +89,8 @@ def test_zero_terminal_snr_needs_v_prediction():
         GeneratorConfig(zero_terminal_snr=True)
     with pytest.raises(ValueError, match="prediction='v'"):
         NoiseSchedule(100, 1e-4, 0.01, zero_terminal_snr=True)
+    with pytest.raises(ValidationError, match="diffusion_steps >= 2"):
+        GeneratorConfig(zero_terminal_snr=True, prediction="v", diffusion_steps=1)
     schedule = NoiseSchedule.from_config(GeneratorConfig(zero_terminal_snr=True, prediction="v"))
     assert schedule.prediction == "v" and float(schedule.alphas_cumprod[-1]) < 1e-20
 

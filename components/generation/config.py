@@ -110,6 +110,8 @@ class GeneratorConfig(Section):
             raise ValueError("beta_end must be >= beta_start")
         if self.zero_terminal_snr and self.prediction != "v":
             raise ValueError("zero_terminal_snr needs prediction='v' (set generator.model.prediction=v)")
+        if self.zero_terminal_snr and self.diffusion_steps < 2:
+            raise ValueError("zero_terminal_snr needs diffusion_steps >= 2 (it rescales the schedule between its ends)")
         return self
 
 

@@ -73,8 +73,8 @@ class NoiseSchedule(nn.Module):
     def __init__(self, steps: int, beta_start: float, beta_end: float, variance: str = "posterior",
                  zero_terminal_snr: bool = False, prediction: str = "epsilon"):
         super().__init__()
-        if zero_terminal_snr and prediction != "v":
-            raise ValueError("a zero-terminal-SNR schedule needs prediction='v'")
+        if zero_terminal_snr and (prediction != "v" or steps < 2):
+            raise ValueError("a zero-terminal-SNR schedule needs prediction='v' and at least 2 steps")
         betas = linear_beta_schedule(steps, beta_start, beta_end)
         if zero_terminal_snr:
             betas = rescale_zero_terminal_snr(betas)
