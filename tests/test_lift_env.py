@@ -108,6 +108,18 @@ def test_an_upward_base_force_lifts_the_hand(env, record):
     assert np.allclose(_block(td["observation"], "last_actions"), up.numpy())
 
 
+def test_actions_are_clipped_and_a_nan_action_is_refused(env, record):
+    env.reset()
+    targets = env.world.targets
+    with pytest.raises(ValueError, match="NaN entries"):
+        env.world.set_action(np.full(24, np.nan, dtype=np.float32))
+    np.testing.assert_array_equal(env.world.targets, targets)  # nothing applied
+    force, torque = env.world.set_action(np.array([0.0] * 18 + [3.0, -3.0, 0.5, 0.0, 0.0, 0.0]))  # 18 joints, wrench
+    assert env.world.last_action[18:] == [1.0, -1.0, 0.5, 0.0, 0.0, 0.0]
+    assert force == [env.cfg.max_base_force_n, -env.cfg.max_base_force_n, 0.5 * env.cfg.max_base_force_n]
+    assert torque == [0.0, 0.0, 0.0]
+
+
 def test_reward_terms_vanish_at_the_goal(env, record):
     env.reset()
     state = env.world.read()

@@ -289,6 +289,9 @@ class LiftWorld:
         The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]), done on
         Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
         values = action.tolist() if isinstance(action, np.ndarray) else list(action)  # float32 -> float exactly
+        if any(x != x for x in values):  # NaN: min/max below would turn it into -1 without a word
+            raise ValueError("the lift env got an action with NaN entries: the policy's output diverged (check its "
+                             "learning rate / observation normalisation, or resume from an earlier checkpoint)")
         a = [min(1.0, max(-1.0, float(x))) for x in values]
         self.last_action = a
         delta, lower, upper = self.cfg.joint_delta_rad, self._lower_list, self._upper_list

@@ -174,10 +174,13 @@ class FusedPointNetEncoder:
         copies, so nothing is recorded."""
         _check_points(points)
         batch, n = points.shape[:2]
-        h = points.reshape(batch * n, 3)
+        return self._encode(points.reshape(batch * n, 3), batch, n)
+
+    def _encode(self, h: Tensor, batch: int, n: int) -> Tensor:
+        """The fused layers on the flat points h (B N, 3), then the max over each cloud's N points.  -> (B, F)."""
         for w, b in self.layers:
             h = torch.addmm(b, h, w).relu_()
-        return h.reshape(batch, n, -1).amax(dim=1)
+        return h.view(batch, n, -1).amax(dim=1)
 
     def encode_numpy(self, points: np.ndarray) -> np.ndarray:
         """The same on numpy arrays (B, N, 3) -> (B, feature_dim) float32, with as few torch calls as possible: the
@@ -189,9 +192,7 @@ class FusedPointNetEncoder:
             raise ValueError(f"PointNetEncoder expects points of shape (B, N >= 1, 3), got {points.shape}")
         batch, n = points.shape[:2]
         h = torch.from_numpy(np.ascontiguousarray(points.reshape(batch * n, 3), dtype=np.float32))
-        for w, b in self.layers:
-            h = torch.addmm(b, h, w).relu_()
-        return h.view(batch, n, -1).amax(dim=1).numpy()
+        return self._encode(h, batch, n).numpy()
 
 
 class PointDecoder(nn.Module):
