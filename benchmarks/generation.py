@@ -37,7 +37,9 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
     from flows.config import load_config
 
     from components.generation import GeneratorConfig, posed_clouds, refine_grasps
+    from components.generation.canonical import AlignedFrame
     from components.generation.denoiser import ObjectInputs
+    from components.generation.generator import guidance_hook
     from components.generation.representation import from_representation
     from components.generation.training import build_generator
     from components.hand import HandConfig, HandModel
@@ -59,12 +61,17 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
         inputs = ObjectInputs(torch.as_tensor(clouds, dtype=torch.float32, device=device)[None],
                               torch.as_tensor(mask, device=device)[None])
         objects = SceneObjects(library, scene, hand.device, hand.dtype)
+        guide = None
+        if sampler.guidance.scale > 0.0:  # the clouds are used as they are: the identity is their aligned frame
+            identity = AlignedFrame.from_yaw(torch.zeros(batch, device=device))
+            guide = guidance_hook(model, hand, sampler, identity, lambda x: objects.sdf(x).amin(-1),
+                                  objects.table_height)
         times: dict[str, list[float]] = {"sample_s": [], "ik_s": [], "refine_s": []}
         for r in range(repeats):
             gen = torch.Generator(device=device).manual_seed(SEED + r)
             t0 = time.perf_counter()
             with torch.no_grad():
-                x = model.sample(inputs, batch, gen, sampler)
+                x = model.sample(inputs, batch, gen, sampler, guide)
             t1 = time.perf_counter()
             p, R, q = from_representation(hand, x, cfg.representation, ik)
             t2 = time.perf_counter()
@@ -82,5 +89,5 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
                                                                 if sampler.method == "ddim" else cfg.diffusion_steps),
                                              "profile": profile, "overrides": list(sets),
                                              "ik_steps": ik.steps, "refine_lr": refine.lr,
-                                             "refine_steps": refine.steps, "weights": "untrained (sampling and IK cost the same; the refinement depends on how much the samples penetrate)"},
+                                             "refine_steps": refine.steps, "guidance_scale": sampler.guidance.scale, "weights": "untrained (sampling and IK cost the same; the refinement depends on how much the samples penetrate)"},
             "paper_time_256_s": 12.28}

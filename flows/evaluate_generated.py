@@ -108,12 +108,13 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
             n = stage.eval_grasps_per_scene
             gen = torch.Generator().manual_seed(cfg.run.seed * 7919 + number)
             yaws = torch.rand(n, generator=gen) * 2.0 * math.pi
+            objects = SceneObjects(library, scene, hand.device, hand.dtype)
             start = time.perf_counter()
             with torch.no_grad():
                 p, R, q = generate_grasps(model, hand, torch.as_tensor(clouds, dtype=torch.float32)[None].expand(n, -1, -1, -1),
                                           yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen,
-                                          sampler=stage.sampler)
-            objects = SceneObjects(library, scene, hand.device, hand.dtype)
+                                          sampler=stage.sampler, distance=lambda x: objects.sdf(x).amin(-1),
+                                          table_height=objects.table_height)
             refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine)
             seconds += time.perf_counter() - start
             q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)

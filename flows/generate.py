@@ -81,13 +81,14 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
         yaws = torch.full((n,), math.radians(palm_direction_deg))
     clouds_t = torch.as_tensor(clouds, dtype=torch.float32).unsqueeze(0).expand(n, -1, -1, -1)
     mask_t = torch.as_tensor(mask).unsqueeze(0).expand(n, -1)
+    scene_objects = SceneObjects(library, scene, hand.device, hand.dtype)
     t0 = time.perf_counter()
     with torch.no_grad():
         p, R, q = generate_grasps(model, hand, clouds_t, yaws, stage.ik, mask_t, per_scene=1, generator=gen,
-                                  sampler=stage.sampler)
+                                  sampler=stage.sampler, distance=lambda x: scene_objects.sdf(x).amin(-1),
+                                  table_height=scene_objects.table_height)
     t1 = time.perf_counter()
-    refined = refine_grasps(hand, SceneObjects(library, scene, hand.device, hand.dtype), p.detach(), R.detach(),
-                            q.detach(), stage.refine)
+    refined = refine_grasps(hand, scene_objects, p.detach(), R.detach(), q.detach(), stage.refine)
     t2 = time.perf_counter()
     folder = cfg.run.workdir / "results" / "generated" / f"{'+'.join(scene.names)}-{seed}"
     atomic_write_json(folder / "scene.json", scene.to_dict())

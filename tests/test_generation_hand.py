@@ -90,7 +90,7 @@ class FixedSampler(torch.nn.Module):
         self.keypoints = keypoints
         self.seen = None
 
-    def sample(self, objects, per_scene=1, generator=None, sampler=None):
+    def sample(self, objects, per_scene=1, generator=None, sampler=None, guide=None):
         self.seen = objects.clouds
         return self.keypoints.reshape(1, -1).repeat(objects.clouds.shape[0] * per_scene, 1)
 

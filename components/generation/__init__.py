@@ -13,10 +13,11 @@ ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints)
 """
 
 from components.generation.canonical import AlignedFrame, palm_direction, rotation_z, yaw_of
-from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
+from components.generation.config import GeneratorConfig, GuidanceConfig, IKConfig, RefineConfig, SamplerConfig
 from components.generation.dataset import GraspDataset, object_cloud, posed_clouds, scene_pivot
 from components.generation.denoiser import GraspDenoiser, ObjectContext, ObjectInputs, timestep_embedding
 from components.generation.diffusion import (
+    GuideFn,
     NoiseSchedule,
     Standardizer,
     ddim_sample,
@@ -30,7 +31,8 @@ from components.generation.diffusion import (
     sample,
     train_diffusion,
 )
-from components.generation.generator import GraspGenerator, generate_grasps
+from components.generation.generator import GraspGenerator, generate_grasps, guidance_hook
+from components.generation.guidance import KeypointSpheres, guidance_energy, guidance_step, make_guide
 from components.generation.ik import IKResult, kabsch, keypoint_error, palm_keypoint_indices, solve_ik
 from components.generation.pointnet2 import (
     PointNet2Encoder,
@@ -52,7 +54,8 @@ from components.generation.representation import from_representation, representa
 from components.generation.training import TrainResult, extendable_step, load_generator, train_generator
 
 __all__ = [
-    "AlignedFrame", "GeneratorConfig", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
+    "AlignedFrame", "GeneratorConfig", "GuidanceConfig", "GuideFn", "KeypointSpheres", "guidance_energy",
+    "guidance_hook", "guidance_step", "make_guide", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
     "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SamplerConfig",
     "SetAbstraction", "ddim_sample", "ddim_step", "ddim_timesteps", "denoise_from",
     "Standardizer", "ball_query", "contact_energy", "diffusion_loss", "farthest_point_sampling",

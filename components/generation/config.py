@@ -3,7 +3,8 @@ and §"Multi-object Grasp Refinement").
 
 * :class:`GeneratorConfig` -- the conditional DDPM: PointNet++ object encoder, cross-attention denoiser,
   noise schedule (100 steps, linear beta 1e-4 -> 0.01, as SceneDiffuser / the paper) and its training.
-* :class:`SamplerConfig` -- how a trained model is sampled: the paper's 100-step ancestral DDPM, or strided DDIM.
+* :class:`SamplerConfig` -- how a trained model is sampled: the paper's 100-step ancestral DDPM, or strided DDIM;
+  optional penetration guidance (:class:`GuidanceConfig`).
 * :class:`IKConfig` -- keypoints -> (p, R, q): palm frame by Kabsch, then the 18 actuated joints by Adam.
 * :class:`RefineConfig` -- the refinement energy E_g = E_pen + lambda_c E_contact with tau 2 mm -> 1 mm.
 
@@ -115,6 +116,28 @@ class GeneratorConfig(Section):
         return self
 
 
+class GuidanceConfig(Section):
+    """Penetration guidance of the sampler (not in the paper, which only refines after sampling; the same idea as
+    SceneDiffuser's / DexDiffuser's guided sampling).  At every guided step the clean estimate x0^ (keypoints) is
+    moved so that spheres along the hand's keypoint chains leave the objects (and the table); the denoiser then
+    re-fits the whole hand to the moved keypoints in the next steps (:mod:`components.generation.guidance`).
+    Only the keypoint representation; off by default."""
+
+    scale: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="Fraction of each sphere's penetration depth removed from x0^ per guided step (one gradient step "
+        "of 1/2 sum relu(r - d)^2 on the keypoints); 0 = off.")
+    start_t: int = Field(
+        99, ge=0,
+        description="Guide only the steps with timestep t <= start_t (0 = the last step only; >= T-1 = every step).")
+    segment_points: int = Field(
+        2, ge=0,
+        description="Spheres placed evenly between consecutive keypoints of each finger chain (mcp-pip-dip-tip) "
+        "besides the 31 keypoints; each sphere's radius is its depth inside the hand's collision geometry at the "
+        "open pose (0 for the surface keypoints: tips, pads, palm faces).")
+    table: bool = Field(True, description="Also push the spheres above the table plane.")
+
+
 class SamplerConfig(Section):
     """Reverse process used at generation time (not part of the trained model: changing it retrains nothing)."""
 
@@ -133,6 +156,9 @@ class SamplerConfig(Section):
     eta: float = Field(
         0.0, ge=0.0, le=1.0, description="method=ddim: noise of each step, 0 = deterministic; 1 with steps = T is "
         "the ancestral DDPM.")
+    guidance: GuidanceConfig = Field(
+        default_factory=GuidanceConfig,
+        description="Penetration guidance during sampling (``GuidanceConfig``; off by default, not in the paper).")
 
 
 class IKConfig(Section):

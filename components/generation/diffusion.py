@@ -47,6 +47,8 @@ EpsModel = Callable[[Tensor, Tensor, Any], Tensor]
 BatchFn = Callable[[int, torch.Generator], tuple[Tensor, Any]]
 #: progress(step, total, info)
 ProgressFn = Callable[[int, int, dict], None]
+#: guide(x0^ (B, D), t) -> x0^' (B, D): a correction of the clean estimate before a sampler step (or None)
+GuideFn = Callable[[Tensor, int], Tensor]
 
 
 # ============================================================================ schedule
@@ -150,13 +152,16 @@ def posterior_mean(schedule: NoiseSchedule, x_t: Tensor, t: Tensor, x0: Tensor) 
 
 @torch.no_grad()
 def p_sample(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, cond: Any,
-             generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
+             generator: Optional[torch.Generator] = None, clip: float = 0.0,
+             guide: Optional[GuideFn] = None) -> Tensor:
     """One ancestral step x_t -> x_{t-1} = mu_{t-1} + sigma_t z (module docstring); no noise at t = 0.
-    ``clip`` > 0 clamps x0^ to [-clip, clip] first.   x_t (B, D) -> (B, D)."""
+    ``clip`` > 0 clamps x0^ to [-clip, clip] first; then ``guide`` (if given) corrects x0^.   x_t (B, D) -> (B, D)."""
     tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
     x0, _ = model_estimates(schedule, x_t, tt, model(x_t, tt, cond))
     if clip > 0.0:
         x0 = x0.clamp(-clip, clip)
+    if guide is not None:
+        x0 = guide(x0, t)
     mean = posterior_mean(schedule, x_t, tt, x0)
     if t == 0:
         return mean
@@ -169,16 +174,17 @@ def p_sample(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, cond
 @torch.no_grad()
 def sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], cond: Any,
            generator: Optional[torch.Generator] = None, clip: float = 0.0, device=None,
-           dtype=torch.float32) -> Tensor:
+           dtype=torch.float32, guide: Optional[GuideFn] = None) -> Tensor:
     """Ancestral sampling: x_{T-1} ~ N(0, I) of ``shape`` (B, D), then :func:`p_sample` for t = T-1 .. 0.  -> x_0 (B, D)."""
     device = torch.device(device) if device is not None else schedule.betas.device
     gen_device = generator.device if generator is not None else device
     x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
-    return denoise_from(model, schedule, x, schedule.steps - 1, cond, generator, clip)
+    return denoise_from(model, schedule, x, schedule.steps - 1, cond, generator, clip, guide)
 
 
 def denoise_from(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, cond: Any,
-                 generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
+                 generator: Optional[torch.Generator] = None, clip: float = 0.0,
+                 guide: Optional[GuideFn] = None) -> Tensor:
     """Ancestral sampling from a given x_t: :func:`p_sample` for t, t-1, .. 0.  With x_t = q_sample(x0, t) this
     is a partial noising and denoising of x0 (SDEdit, Meng et al. 2022); t = T-1 from N(0, I) is :func:`sample`.
     x_t (B, D) -> x_0 (B, D)."""
@@ -186,7 +192,7 @@ def denoise_from(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, 
         raise ValueError(f"t must be in 0 .. {schedule.steps - 1} (the schedule's T - 1), got {t}")
     x = x_t
     for step in reversed(range(t + 1)):
-        x = p_sample(model, schedule, x, step, cond, generator, clip)
+        x = p_sample(model, schedule, x, step, cond, generator, clip, guide)
     return x
 
 
@@ -206,14 +212,20 @@ def ddim_timesteps(train_steps: int, sampling_steps: int, spacing: str = "leadin
 
 @torch.no_grad()
 def ddim_step(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, t_prev: int, cond: Any, eta: float = 0.0,
-              generator: Optional[torch.Generator] = None, clip: float = 0.0) -> Tensor:
-    """One DDIM step x_t -> x_{t_prev} (module docstring; t_prev = -1: abar = 1, returns x0^).   (B, D) -> (B, D)."""
+              generator: Optional[torch.Generator] = None, clip: float = 0.0,
+              guide: Optional[GuideFn] = None) -> Tensor:
+    """One DDIM step x_t -> x_{t_prev} (module docstring; t_prev = -1: abar = 1, returns x0^); ``clip`` and
+    ``guide`` change x0^ as in :func:`p_sample`, and eps^ is then the noise consistent with the changed x0^.
+    (B, D) -> (B, D)."""
     tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
     x0, eps = model_estimates(schedule, x_t, tt, model(x_t, tt, cond))
-    if clip > 0.0:
-        x0 = x0.clamp(-clip, clip)
+    if clip > 0.0 or guide is not None:
+        if clip > 0.0:
+            x0 = x0.clamp(-clip, clip)
+        if guide is not None:
+            x0 = guide(x0, t)
         abar_t = schedule.at("alphas_cumprod", tt, x_t)
-        eps = (x_t - abar_t.sqrt() * x0) / (1.0 - abar_t).sqrt()  # the noise consistent with the clamped x0^
+        eps = (x_t - abar_t.sqrt() * x0) / (1.0 - abar_t).sqrt()  # the noise consistent with the changed x0^
     if t_prev < 0:
         return x0
     abar_t = float(schedule.alphas_cumprod[t])
@@ -229,7 +241,7 @@ def ddim_step(model: EpsModel, schedule: NoiseSchedule, x_t: Tensor, t: int, t_p
 @torch.no_grad()
 def ddim_sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...], cond: Any, steps: int,
                 eta: float = 0.0, generator: Optional[torch.Generator] = None, clip: float = 0.0, device=None,
-                dtype=torch.float32, spacing: str = "leading") -> Tensor:
+                dtype=torch.float32, spacing: str = "leading", guide: Optional[GuideFn] = None) -> Tensor:
     """Strided sampling: x_{t_{S-1}} ~ N(0, I) of ``shape`` (B, D), then :func:`ddim_step` down the
     :func:`ddim_timesteps` (``spacing``).  -> x_0 (B, D)."""
     device = torch.device(device) if device is not None else schedule.betas.device
@@ -237,7 +249,8 @@ def ddim_sample(model: EpsModel, schedule: NoiseSchedule, shape: tuple[int, ...]
     x = torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
     timesteps = ddim_timesteps(schedule.steps, steps, spacing)
     for i in reversed(range(len(timesteps))):
-        x = ddim_step(model, schedule, x, timesteps[i], timesteps[i - 1] if i > 0 else -1, cond, eta, generator, clip)
+        x = ddim_step(model, schedule, x, timesteps[i], timesteps[i - 1] if i > 0 else -1, cond, eta, generator, clip,
+                      guide)
     return x
 
 
