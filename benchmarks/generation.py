@@ -89,5 +89,6 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
                                                                 if sampler.method == "ddim" else cfg.diffusion_steps),
                                              "profile": profile, "overrides": list(sets),
                                              "ik_steps": ik.steps, "refine_lr": refine.lr,
-                                             "refine_steps": refine.steps, "guidance_scale": sampler.guidance.scale, "weights": "untrained (sampling and IK cost the same; the refinement depends on how much the samples penetrate)"},
+                                             "refine_steps": refine.steps, "guidance_scale": sampler.guidance.scale,
+                                             "weights": "untrained (sampling and IK cost the same; the refinement depends on how much the samples penetrate)"},
             "paper_time_256_s": 12.28}

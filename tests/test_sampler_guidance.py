@@ -27,14 +27,17 @@ from components.generation import (
 )
 from components.generation.guidance import FINGER_CHAINS
 from components.hand import HandConfig, HandModel
-
-SMALL = dict(points_per_object=64, sa1_points=16, sa1_widths=(16,), sa2_points=4, sa2_widths=(32,),
-             global_widths=(32,), model_dim=32, heads=2, blocks=1, time_embedding_dim=16)
+from tests.test_ddim import SMALL
 
 
 def _ball(centre, radius):
     """Signed distance to a ball: |x - c| - r."""
     return lambda x: (x - torch.as_tensor(centre, dtype=x.dtype)).norm(dim=-1) - radius
+
+
+def _one_sphere(radius):
+    """A single sphere on the first (and only) keypoint."""
+    return KeypointSpheres(weights=torch.eye(1, dtype=torch.float64), radii=torch.tensor([radius], dtype=torch.float64))
 
 
 def test_spheres_sit_on_the_keypoint_chains_with_radii_from_the_hand(hand):
@@ -54,7 +57,7 @@ def test_spheres_sit_on_the_keypoint_chains_with_radii_from_the_hand(hand):
 
 
 def test_one_step_moves_a_lone_sphere_out_of_a_ball_by_scale_times_its_depth():
-    spheres = KeypointSpheres(weights=torch.eye(1, dtype=torch.float64), radii=torch.tensor([0.01], dtype=torch.float64))
+    spheres = _one_sphere(0.01)
     distance = _ball([0.0, 0.0, 0.1], 0.03)
     direction = torch.tensor([0.6, 0.0, 0.8], dtype=torch.float64)
     centre = torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64) + 0.025 * direction  # d = -5 mm, depth 15 mm
@@ -71,8 +74,9 @@ def test_one_step_moves_a_lone_sphere_out_of_a_ball_by_scale_times_its_depth():
 
 
 def test_the_guide_acts_only_at_or_below_start_t_and_round_trips_the_frame_and_scaling():
-    spheres = KeypointSpheres(weights=torch.eye(1, dtype=torch.float64), radii=torch.tensor([0.01], dtype=torch.float64))
-    frame = AlignedFrame.from_yaw(torch.tensor([0.7], dtype=torch.float64), torch.tensor([[0.1, -0.2, 0.0]], dtype=torch.float64))
+    spheres = _one_sphere(0.01)
+    frame = AlignedFrame.from_yaw(torch.tensor([0.7], dtype=torch.float64),
+                                  torch.tensor([[0.1, -0.2, 0.0]], dtype=torch.float64))
     guide = make_guide(GuidanceConfig(scale=1.0, start_t=10), spheres, _ball([0.1, -0.2, 0.05], 0.03), 0.0,
                        frame.points_from_aligned, frame.points_to_aligned, lambda z: 0.1 * z, lambda x: 10.0 * x)
     z = torch.tensor([[0.0, 0.0, 0.7]], dtype=torch.float64)  # aligned (0, 0, 0.07): 2 cm above the ball's centre
