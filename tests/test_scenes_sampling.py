@@ -206,3 +206,33 @@ def test_max_gap_many_applies_above_the_many_threshold_only():
     assert max_gap_for(2, cfg) == 0.025 and max_gap_for(3, cfg) == 0.025
     assert max_gap_for(4, cfg) == 0.01 and max_gap_for(5, cfg) == 0.01
     assert max_gap_for(5, ScenesConfig(max_gap_m=0.025)) == 0.025  # unset: max_gap_m for every count
+
+
+def test_cluster_placement_puts_five_small_cylinders_within_a_centimetre_of_each_other(library):
+    # uniform placement in ±3.5 cm never finds five small cylinders in a 1 cm cluster (README); growing one does
+    cfg = ScenesConfig(many_placement="cluster", max_gap_many_m=0.01, xy_half_range_many_m=0.035, max_tries=200)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        scene = sample_scene(library, ["small_cylinder"] * 5, rng, cfg)
+        for a, b in itertools.combinations(scene.objects, 2):
+            assert closest_distance(library, a, b) > 0.0015  # min_gap 2 mm, minus the SDF check's tolerance
+        centroid = np.mean([pl.position[:2] for pl in scene.objects], axis=0)
+        assert np.all(np.abs(centroid) <= 0.035 + 1e-9)
+        # one cluster: linking objects closer than 1 cm (+ the check's tolerance) connects all five
+        near = {(i, j) for (i, a), (j, b) in itertools.combinations(enumerate(scene.objects), 2)
+                if closest_distance(library, a, b) <= 0.0115}
+        reached, frontier = {0}, [0]
+        while frontier:
+            i = frontier.pop()
+            for j in range(5):
+                if j not in reached and ((i, j) in near or (j, i) in near):
+                    reached.add(j)
+                    frontier.append(j)
+        assert reached == set(range(5))
+    pair = sample_scene(library, ["cube", "cylinder"], np.random.default_rng(1), cfg)  # below the threshold: uniform
+    assert all(abs(c) <= cfg.xy_half_range_m for pl in pair.objects for c in pl.position[:2])
+
+
+def test_cluster_placement_without_a_gap_is_a_config_error():
+    with pytest.raises(ValueError, match="max_gap_many_m"):
+        ScenesConfig(many_placement="cluster")

@@ -117,6 +117,14 @@ class ScenesConfig(Section):
         description="max_gap_m for scenes with more than `many_threshold` objects (None = max_gap_m).  The 'many' "
         "split's small cylinders held by group force closure (synthesis fc_mode 'group') must nearly touch: 1 cm "
         "gave 6/32 accepted four-cylinder grasps (README 'Synthesis settings'); no profile sets it yet.")
+    many_placement: Literal["uniform", "cluster"] = Field(
+        "uniform",
+        description="How scenes with more than `many_threshold` objects are drawn.  uniform: every centre uniform in "
+        "±xy_half_range_many_m (rejected until the gap rules hold).  cluster: grown one object at a time, each next to a "
+        "random placed one at a gap drawn in [min_gap_m, max gap] between their footprint circles, and the cluster's "
+        "centroid then moved to a uniform point in ±xy_half_range_many_m; the same gap checks follow.  Needs "
+        "max_gap_many_m (or max_gap_m).  Five small cylinders within a 1 cm gap: uniform in ±3.5 cm never places them "
+        "in 20,000 tries (README 'Synthesis settings').")
     max_tries: int = Field(2000, ge=1, description="Rejection-sampling tries for one scene before giving up with an error.")
     settle_time_s: float = Field(1.0, gt=0, description="Simulated time for which a placed scene must stay put.")
     settle_tolerance_m: float = Field(0.002, gt=0, description="A scene is stable if every object origin moves less than this while settling.")
@@ -124,3 +132,10 @@ class ScenesConfig(Section):
     gravity_m_s2: float = Field(9.81, gt=0, description="Gravity magnitude (along -z).")
     table_friction: float = Field(0.8, ge=0, description="Lateral friction of the table plane.")
     max_settle_attempts: int = Field(10, ge=1, description="sample_settled_scenes: sampled scenes allowed per requested stable scene before giving up.")
+
+    @model_validator(mode="after")
+    def _cluster_needs_a_gap(self) -> "ScenesConfig":
+        if self.many_placement == "cluster" and self.max_gap_many_m is None and self.max_gap_m is None:
+            raise ValueError("many_placement=cluster needs a gap to grow the cluster with: set "
+                             "scenes.sampling.max_gap_many_m (e.g. 0.01)")
+        return self

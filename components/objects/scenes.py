@@ -28,6 +28,12 @@ log = logging.getLogger(__name__)
 
 #: Where bodies wait (far below the table) before a placement is tried.
 PARKING_Z_M = -10.0
+#: ``many_placement: cluster``: at most this many slides of a new object toward its neighbour, and the gap error
+#: (m) at which it stops (the placement's gap is random anyway; this only keeps it inside [min_gap, max_gap]).
+CLUSTER_SLIDE_STEPS = 4
+CLUSTER_SLIDE_TOLERANCE_M = 5e-4
+#: ``many_placement: cluster``: candidate spots tried for each new object (the most central clear one is kept).
+CLUSTER_CANDIDATES = 8
 
 
 @dataclass(frozen=True)
@@ -152,9 +158,66 @@ def xy_half_range(n_objects: int, cfg: ScenesConfig) -> float:
     return cfg.xy_half_range_many_m if n_objects > cfg.many_threshold else cfg.xy_half_range_m
 
 
+def footprint_radius(lib: ObjectLibrary, placement: Placement) -> float:
+    """Radius (m) of the smallest circle about the object's origin that holds its posed mesh seen from above."""
+    rotation = Rotation.from_quat(placement.quat_xyzw).as_matrix()
+    vertices = np.asarray(lib.get(placement.name).mesh.vertices) @ rotation.T
+    return float(np.linalg.norm(vertices[:, :2], axis=1).max())
+
+
+def _slide_next_to(lib: ObjectLibrary, anchor: Placement, anchor_body: int, pose: Placement, body: int, gap: float,
+                   direction: float, client: int) -> Placement:
+    """``pose`` moved (in xy) to direction ``direction`` (rad) from ``anchor``, ``gap`` (m) away from it: it starts where
+    the footprint circles (:func:`footprint_radius`) are ``gap`` apart and slides toward the anchor by the surplus of
+    PyBullet's closest distance over ``gap``, up to ``CLUSTER_SLIDE_STEPS`` times.  ``body`` is left at the result."""
+    unit = np.array([np.cos(direction), np.sin(direction)])
+    rho = footprint_radius(lib, anchor) + footprint_radius(lib, pose) + gap
+    for _ in range(CLUSTER_SLIDE_STEPS):
+        xy = np.asarray(anchor.position[:2]) + rho * unit
+        pose = Placement(name=pose.name, position=(float(xy[0]), float(xy[1]), pose.position[2]), quat_xyzw=pose.quat_xyzw)
+        pb.resetBasePositionAndOrientation(body, pose.position, pose.quat_xyzw, physicsClientId=client)
+        surplus = _closest_distance(client, anchor_body, body, rho) - gap
+        if not np.isfinite(surplus) or abs(surplus) < CLUSTER_SLIDE_TOLERANCE_M:
+            break
+        rho -= surplus
+    return pose
+
+
+def cluster_placements(lib: ObjectLibrary, names: Sequence[str], half_range: float, gap: float, min_gap: float,
+                       rng: np.random.Generator, client: int, bodies: Sequence[int]) -> list[Placement]:
+    """One try of ``many_placement: cluster``: resting poses and yaws as :func:`random_resting_placement`.  Object
+    i > 0 gets ``CLUSTER_CANDIDATES`` candidate spots, each next to a random earlier object in a uniform direction at
+    a gap ~ U(min_gap, gap) (:func:`_slide_next_to`); of those at least ``min_gap`` from every earlier object it
+    takes the one nearest the earlier objects' centroid, so the cluster grows compact instead of into a chain (the
+    last candidate when none is clear: the caller's overlap check then rejects the try).  Then the whole cluster
+    is shifted so that its centroid is uniform in ±``half_range``.  ``bodies`` (one per name, in ``client``) are
+    moved along; overlaps and the cluster rule are checked by the caller, as for uniform scenes."""
+    placed: list[Placement] = []
+    for i, name in enumerate(names):
+        pose = random_resting_placement(lib, name, 0.0, rng)
+        if placed:
+            centroid = np.mean([pl.position[:2] for pl in placed], axis=0)
+            best, best_distance = None, np.inf
+            for _ in range(CLUSTER_CANDIDATES):
+                j = int(rng.integers(len(placed)))
+                spot = _slide_next_to(lib, placed[j], bodies[j], pose, bodies[i], rng.uniform(min_gap, gap),
+                                      rng.uniform(0.0, 2 * np.pi), client)
+                clear = all(_closest_distance(client, bodies[k], bodies[i], min_gap) >= min_gap for k in range(i))
+                distance = float(np.linalg.norm(np.asarray(spot.position[:2]) - centroid))
+                if clear and distance < best_distance:
+                    best, best_distance = spot, distance
+            pose = best if best is not None else spot
+            pb.resetBasePositionAndOrientation(bodies[i], pose.position, pose.quat_xyzw, physicsClientId=client)
+        placed.append(pose)
+    shift = rng.uniform(-half_range, half_range, size=2) - np.mean([pl.position[:2] for pl in placed], axis=0)
+    return [Placement(name=pl.name, position=(pl.position[0] + float(shift[0]), pl.position[1] + float(shift[1]),
+                                              pl.position[2]), quat_xyzw=pl.quat_xyzw) for pl in placed]
+
+
 def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Generator, cfg: ScenesConfig) -> Scene:
     """A random scene of ``names``: each object in a random resting pose (by probability), random
-    yaw, xy uniform in ±range; whole scenes are rejected while any two objects are closer than
+    yaw, xy uniform in ±range (above ``many_threshold`` objects with ``many_placement: cluster``: grown as a
+    cluster, :func:`cluster_placements`); whole scenes are rejected while any two objects are closer than
     ``min_gap_m`` (PyBullet closest distance between their collision shapes) or, with ``max_gap_m``
     (``max_gap_many_m`` above ``many_threshold`` objects), while the objects do not form one cluster of
     neighbours within that gap, at most ``max_tries`` times.
@@ -165,11 +228,15 @@ def sample_scene(lib: ObjectLibrary, names: Sequence[str], rng: np.random.Genera
     for name in names:
         lib.require(name, where="the scene")
     half, gap = xy_half_range(len(names), cfg), max_gap_for(len(names), cfg)
+    cluster = len(names) > cfg.many_threshold and cfg.many_placement == "cluster"
     client = pb.connect(pb.DIRECT)
     try:
         bodies = [lib.get(n).pybullet_body(client, (0.0, 0.0, PARKING_Z_M * (i + 1)), (0.0, 0.0, 0.0, 1.0)) for i, n in enumerate(names)]
         for _ in range(cfg.max_tries):
-            placements = [random_resting_placement(lib, n, half, rng) for n in names]
+            if cluster:
+                placements = cluster_placements(lib, names, half, gap, cfg.min_gap_m, rng, client, bodies)
+            else:
+                placements = [random_resting_placement(lib, n, half, rng) for n in names]
             for body, placement in zip(bodies, placements):
                 pb.resetBasePositionAndOrientation(body, placement.position, placement.quat_xyzw, physicsClientId=client)
             if all(_closest_distance(client, a, b, cfg.min_gap_m) >= cfg.min_gap_m for a, b in itertools.combinations(bodies, 2)) \
