@@ -27,6 +27,7 @@ from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
 from tasks.generator import GeneratorStageConfig
 from tasks.pointnet import PointNetStageConfig
+from tasks.reach import ReachStageConfig
 from tasks.scenes import ScenesStageConfig
 from tasks.specialists import SpecialistsStageConfig
 from tasks.synthesize import SynthesisStageConfig
@@ -73,6 +74,8 @@ class PipelineConfig(Section):
                                           description="Pre-training of the point-cloud encoder (pointnet stage).")
     specialists: SpecialistsStageConfig = Field(default_factory=SpecialistsStageConfig,
                                                 description="Binning of the pre-grasps and PPO of each specialist.")
+    reach: ReachStageConfig = Field(default_factory=ReachStageConfig,
+                                    description="Planned reaches to the specialists' pre-grasps, run in PyBullet (reach stage).")
 
     @field_validator("run")
     @classmethod

@@ -114,7 +114,7 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
     cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
     states = {r.name: r.state for r in status(cfg)}
     assert states == {"scenes": "missing", "synthesize": "blocked", "train-generator": "blocked", "pointnet": "missing",
-                      "specialists": "blocked"}
+                      "specialists": "blocked", "reach": "blocked"}
     assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path)] + sum([["--set", s] for s in SMALL], [])) == 0
     assert "missing" in capsys.readouterr().out
 
