@@ -5,7 +5,9 @@ of the ``Pl`` / ``Com`` / ``Geo`` scene splits (same ``specialists.records_sourc
 singles are left out, as the paper's table is about two objects), the first ``specialists.eval_poses`` of each.  Each pre-grasp is lifted by its *matching specialist*: the one of its
 own bin when it exists (unseen placements of seen combinations), else the largest specialist of the same
 placement sector and object count (unseen combinations / geometries), else the largest of the same object
-count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`).
+count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`), from the pre-grasp
+itself or, with ``specialists.eval_after_reach``, from where the reach stage's planned reach (``reach.reaching``,
+run once per pose in PyBullet: :func:`tasks.reach.reach_records`) left the hand and the objects.
 
 Writes ``<workdir>/results/execution.json`` ``{"rows": [{"setting", "succ", "n_poses", "trials"}]}`` and
 ``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the scripted lift on the same poses),
@@ -81,6 +83,7 @@ class SplitResult:
     squeeze_wins: int = 0
     squeeze_total: int = 0
     unmatched: int = 0
+    reached: int = 0  # poses lifted from their end-of-reach state (specialists.eval_after_reach)
     used: tuple[str, ...] = ()
     gifs: tuple[Path, ...] = ()
 
@@ -128,6 +131,15 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     gif_paths: list[Path] = []
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
+        if stage.eval_after_reach:  # lift from where the planned reach left hand and objects
+            from components.objects import ObjectLibrary
+            from tasks.reach import reach_records
+
+            hand = HandModel(cfg.hand)
+            group = reach_records(group, cfg.reach.reaching, cfg.lift, hand,
+                                  ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir)),
+                                  Path(entry["folder"]) / "hand.urdf")
+            out.reached += len(group)
         factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
                                  objects_cache=str(cache_dir(cfg.run.workdir)),
                                  urdf=str(Path(entry["folder"]) / "hand.urdf"),
@@ -172,7 +184,8 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl")
         gifs += res.gifs
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
-               "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used)}
+               "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used),
+               "after_reach": stage.eval_after_reach, "reached_poses": res.reached}
         rows.append(row)
         if setting == "Syn-Pl":
             ablation.append({"setting": "Ours", "succ": row["succ"], "n_poses": res.poses, "trials": stage.eval_trials})
@@ -193,7 +206,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
     specialists = outputs["specialists"]
-    provenance = {"profile": cfg.profile, "records_source": stage.records_source,
+    provenance = {"profile": cfg.profile, "records_source": stage.records_source, "after_reach": stage.eval_after_reach,
                   "specialists_manifest": str(Path(specialists.folder) / "manifest.json")}
     json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance})
     ablation_path = atomic_write_json(results / "ablation_execution.json", {"rows": ablation, **provenance})

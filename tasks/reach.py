@@ -65,37 +65,50 @@ def reach_summary(records: list[dict[str, Any]], threshold: float) -> dict[str, 
             "path_penetration_planned": round(float(planned.mean()), 6)}
 
 
+def reach_records(records: list, reaching: ReachingConfig, lift: LiftEnvConfig, hand, library, urdf: Path,
+                  progress=None) -> list:
+    """End-of-reach records (GraspRecords) of pre-grasp records: plan and execute each reach in one LiftWorld
+    (module docstring); ``meta`` gains the plan's path penetration before / after planning.  ``progress(k, n, end)``
+    after each."""
+    from components.execution.lift_sim import LiftWorld
+    from components.execution.reaching import execute_reach, plan_reach
+    from components.synthesis import SceneObjects
+
+    world = LiftWorld(hand, library, urdf, lift)
+    reached = []
+    try:
+        for number, record in enumerate(records):
+            waypoints, plan = plan_reach(hand, SceneObjects(library, record.scene), record, reaching)
+            end = execute_reach(world, record, waypoints, reaching)
+            end.meta.update({k: round(float(v), 9) for k, v in plan.items()})
+            reached.append(end)
+            if progress is not None:
+                progress(number + 1, len(records), end)
+    finally:
+        world.close()
+    return reached
+
+
 def reach_shard(folder: Path, records: list[dict[str, Any]], stage: ReachStageConfig, lift: LiftEnvConfig,
                 objects: ObjectsConfig, hand_cfg, cache: Path, unit: str) -> UnitOutput:
     """Plan and execute the reach of each record (module docstring); write ``reached.json`` and ``stats.json``."""
-    from components.execution.lift_sim import LiftWorld
-    from components.execution.reaching import execute_reach, plan_reach
     from components.execution.records import record_from_dict, record_to_dict, save_records
     from components.hand import HandModel
     from components.objects import ObjectLibrary
-    from components.synthesis import SceneObjects
 
     hand = HandModel(hand_cfg)
-    library = ObjectLibrary(objects, cache_dir=cache)
-    world = LiftWorld(hand, library, hand.export_urdf(folder / "hand.urdf"), lift)
-    reached, start = [], time.perf_counter()
-    try:
-        for number, data in enumerate(records):
-            record = record_from_dict(data)
-            waypoints, plan = plan_reach(hand, SceneObjects(library, record.scene), record, stage.reaching)
-            end = execute_reach(world, record, waypoints, stage.reaching)
-            out = record_to_dict(end)
-            out["meta"].update({k: round(float(v), 9) for k, v in plan.items()})
-            reached.append(out)
-            elapsed = time.perf_counter() - start
-            print(f"reach {unit} {number + 1}/{len(records)}: largest object displacement "
-                  f"{max(out['meta']['object_displacement_m']) * 1000:.1f} mm, palm error "
-                  f"{out['meta']['palm_error_m'] * 1000:.1f} mm, ETA {elapsed / (number + 1) * (len(records) - number - 1):.0f}s",
-                  file=sys.stderr, flush=True)
-    finally:
-        world.close()
-    path = save_records(folder / "reached.json", [record_from_dict(r) for r in reached])
-    metrics = reach_summary(reached, stage.displaced_threshold_m)
+    start = time.perf_counter()
+
+    def progress(done: int, total: int, end) -> None:
+        elapsed = time.perf_counter() - start
+        print(f"reach {unit} {done}/{total}: largest object displacement "
+              f"{max(end.meta['object_displacement_m']) * 1000:.1f} mm, palm error {end.meta['palm_error_m'] * 1000:.1f} mm, "
+              f"ETA {elapsed / done * (total - done):.0f}s", file=sys.stderr, flush=True)
+
+    reached = reach_records([record_from_dict(r) for r in records], stage.reaching, lift, hand,
+                            ObjectLibrary(objects, cache_dir=cache), hand.export_urdf(folder / "hand.urdf"), progress)
+    path = save_records(folder / "reached.json", reached)
+    metrics = reach_summary([record_to_dict(r) for r in reached], stage.displaced_threshold_m)
     stats = atomic_write_json(folder / "stats.json", metrics)
     return UnitOutput(files={"reached": path, "stats": stats}, metrics=metrics)
 

@@ -62,6 +62,11 @@ class SpecialistsStageConfig(Section):
     eval_poses: int = Field(100, ge=1, description="multigrasp evaluate execution: pre-grasps per setting (the paper: 512).")
     eval_trials: int = Field(5, ge=1, description="Trials per pre-grasp, each from a seeded perturbation (the paper: 5).")
     eval_seed: int = Field(0, ge=0, description="Seed of the evaluation's trial perturbations.")
+    eval_after_reach: bool = Field(
+        False, description="multigrasp evaluate execution: reach each evaluated pre-grasp first (the reach stage's "
+        "planned path from an open hand, run in PyBullet with reach.reaching) and lift from the end-of-reach state, "
+        "objects where the reach left them (paper §'Execution Policy': reaching, then lifting).  False: lift from the "
+        "pre-grasp itself.")
     gifs_per_outcome: int = Field(
         2, ge=0, description="multigrasp evaluate execution: GIFs of this many successful and this many failed trials "
         "per specialist, logged to MLflow (each replays a trial with the CPU renderer, ~1 s).")

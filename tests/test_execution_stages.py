@@ -109,6 +109,36 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path):
     assert all(r["succ"] is None and "--ablations" in r["missing"] for r in ablation[3:])
 
 
+def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(runs, monkeypatch):
+    import flows.evaluate_execution as ev
+    import tasks.reach
+
+    workdir, _, _ = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    reached = []
+    real = tasks.reach.reach_records
+
+    def spy(records, *args, **kwargs):
+        out = real(records, *args, **kwargs)
+        reached.extend(out)
+        return out
+
+    monkeypatch.setattr(tasks.reach, "reach_records", spy)
+    # at this size the specialists are single-object ones and no evaluation pair matches them: evaluate the splits'
+    # singles instead, each with the first specialist
+    monkeypatch.setattr(ev, "EVALUATED_OBJECTS", 1)
+    monkeypatch.setattr(ev, "matching_specialist", lambda label, index: next(iter(index)))
+    argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=3", "specialists.eval_trials=1",
+                 "specialists.eval_after_reach=true", "specialists.gifs_per_outcome=0"]:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    rows = json.loads((workdir / "results" / "execution.json").read_text())["rows"]
+    assert all(r["after_reach"] for r in rows)
+    assert sum(r["reached_poses"] for r in rows) == sum(r["n_poses"] for r in rows) == len(reached) >= 1
+    assert all(r.meta["reached"] and "object_displacement_m" in r.meta for r in reached)
+
+
 def test_evaluate_execution_without_the_stages_names_the_command(tmp_path, capsys):
     assert main(["evaluate", "execution", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
     assert "multigrasp run --until specialists" in capsys.readouterr().err
