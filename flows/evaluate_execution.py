@@ -128,17 +128,16 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         else:
             groups.setdefault(match, []).append(record)
     out.used = tuple(sorted(groups))
+    if stage.eval_after_reach:  # lift from where the planned reach left hand and objects
+        from components.objects import ObjectLibrary
+        from tasks.reach import reach_records
+
+        hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     gif_paths: list[Path] = []
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
-        if stage.eval_after_reach:  # lift from where the planned reach left hand and objects
-            from components.objects import ObjectLibrary
-            from tasks.reach import reach_records
-
-            hand = HandModel(cfg.hand)
-            group = reach_records(group, cfg.reach.reaching, cfg.lift, hand,
-                                  ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir)),
-                                  Path(entry["folder"]) / "hand.urdf")
+        if stage.eval_after_reach:
+            group = reach_records(group, cfg.reach.reaching, cfg.lift, hand, library, Path(entry["folder"]) / "hand.urdf")
             out.reached += len(group)
         factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
                                  objects_cache=str(cache_dir(cfg.run.workdir)),

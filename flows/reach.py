@@ -3,6 +3,7 @@ PyBullet; the end-of-reach states are recorded (``tasks.reach``)."""
 
 from __future__ import annotations
 
+import numpy as np
 from prefect import flow
 
 from components.execution.records import record_to_dict
@@ -22,11 +23,13 @@ DESCRIPTION = "plan and execute the reach from an open hand to each specialist p
 
 def shard_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> list[tuple[UnitSpec, list[dict]]]:
-    """(spec, records as dicts) of every shard: the specialists' pre-grasps, at most ``reach.max_records``."""
+    """(spec, records as dicts) of every shard: the specialists' pre-grasps, at most ``reach.max_records`` of them
+    evenly spread over that list (which is in scene order, so every combination keeps its share)."""
     stage = cfg.reach
     records = select_records(upstream["synthesize"], cfg.specialists, cfg.specialists.splits)
-    if stage.max_records:
-        records = records[: stage.max_records]
+    if stage.max_records and len(records) > stage.max_records:
+        picked = np.linspace(0, len(records) - 1, stage.max_records).round().astype(int)
+        records = [records[i] for i in picked]
     dicts = [record_to_dict(r) for r in records]
     base = section_digest(cfg, "reach.reaching", "lift", "hand", "objects")
     code = code_version(*REACH_CODE_DIRS)

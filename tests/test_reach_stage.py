@@ -3,6 +3,8 @@ planned reaches to the specialists' pre-grasps executed in PyBullet; end-of-reac
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from components.execution.records import load_records
@@ -40,7 +42,8 @@ def runs(tmp_path_factory):
 
 
 def test_reach_records_the_end_state_of_each_pre_grasp(runs):
-    workdir, _, _, _ = runs
+    workdir, argv, _, _ = runs
+    config_path = Path(argv[argv.index("--config") + 1])
     manifest = _final(workdir)
     records = load_records(manifest.path("reached"))
     assert len(records) == 3 == manifest.metrics["reached"]
@@ -50,6 +53,16 @@ def test_reach_records_the_end_state_of_each_pre_grasp(runs):
         assert meta["palm_error_m"] >= 0.0 and meta["penetration_planned"] <= meta["penetration_straight"] + 1e-9
         assert {"scene_id", "split", "row"} <= set(meta)  # the synthesis row it came from
     assert 0.0 <= manifest.metrics["displaced_fraction"] <= 1.0
+    # the 3 are spread over the specialists' selection (first, middle, last), not its first 3
+    from flows.config import load_config
+    from flows.pipeline import stage_output
+    from tasks.specialists import select_records
+
+    cfg = load_config("smoke", config_path, [*ACCEPT_ALL, *REACH], workdir=workdir)
+    selected = select_records(stage_output(cfg, "synthesize"), cfg.specialists, cfg.specialists.splits)
+    assert len(selected) > 3
+    picked = [selected[i].meta for i in (0, round((len(selected) - 1) / 2), len(selected) - 1)]
+    assert [(r.meta["scene_id"], r.meta["row"]) for r in records] == [(m["scene_id"], m["row"]) for m in picked]
     assert manifest.path("displacements").is_file()
 
 

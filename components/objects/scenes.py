@@ -207,7 +207,8 @@ def cluster_placements(lib: ObjectLibrary, names: Sequence[str], half_range: flo
                 if clear and distance < best_distance:
                     best, best_distance = spot, distance
             pose = best if best is not None else spot
-            pb.resetBasePositionAndOrientation(bodies[i], pose.position, pose.quat_xyzw, physicsClientId=client)
+        # every placed body stands where its placement says: the next objects slide against it and check it
+        pb.resetBasePositionAndOrientation(bodies[i], pose.position, pose.quat_xyzw, physicsClientId=client)
         placed.append(pose)
     shift = rng.uniform(-half_range, half_range, size=2) - np.mean([pl.position[:2] for pl in placed], axis=0)
     return [Placement(name=pl.name, position=(pl.position[0] + float(shift[0]), pl.position[1] + float(shift[1]),
