@@ -9,8 +9,8 @@ from prefect import flow
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           planned_shards_and_merge, shards_then_merge)
-from tasks.artifacts import Manifest, code_version, digest, upstream_hashes
+                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from tasks.artifacts import Manifest, code_version, digest
 from tasks.reach import REACH_CODE_DIRS, reach_merge_task, reach_shard_task
 from tasks.specialists import select_records
 from tasks.tracking import Tracker
@@ -45,9 +45,8 @@ def shard_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str |
 
 def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
-    return make_spec(stage=STAGE, unit="merge", section_digest=section_digest(cfg, "reach.displaced_threshold_m"),
-                     upstream=upstream_hashes((m.unit, m) for m in shards), code=code_version("tasks/reach.py"),
-                     workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+    return merge_unit_spec(cfg, STAGE, shards, section_digest(cfg, "reach.displaced_threshold_m"),
+                           code_version("tasks/reach.py"), run_id, tracking_uri)
 
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:

@@ -18,9 +18,9 @@ from rich.console import Console
 
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, RunConfig
-from tasks.artifacts import Manifest
+from tasks.artifacts import Manifest, upstream_hashes
 from tasks.tracking import Tracker, default_tracking_uri
-from tasks.units import records_dir
+from tasks.units import make_spec, records_dir
 
 log = logging.getLogger("multigrasp")
 
@@ -284,6 +284,15 @@ def log_loss_history(tracker, result: StageResult, artifact_path: str) -> None:
     for row in json.loads(result.manifest.path("history").read_text()):
         tracker.log_metrics(result.run_id, {"loss": row["loss"]}, step=row["step"])
     tracker.log_artifact(result.run_id, result.manifest.path("loss_plot"), artifact_path)
+
+
+def merge_unit_spec(cfg: PipelineConfig, stage: str, shards: list[Manifest], section_digest: str, code: str,
+                    run_id: str | None = None, tracking_uri: str | None = None):
+    """Spec of a shards-then-merge stage's ``merge`` unit: keyed by the stage's merge settings
+    (``section_digest``), the shard manifests it combines and the merge code (``code``)."""
+    return make_spec(stage=stage, unit="merge", section_digest=section_digest,
+                     upstream=upstream_hashes((m.unit, m) for m in shards), code=code, workdir=cfg.run.workdir,
+                     run_id=run_id, tracking_uri=tracking_uri)
 
 
 def planned_shards_and_merge(shard_specs: list, merge_spec_of: Callable[[list[Manifest]], object]) -> list:

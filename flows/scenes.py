@@ -6,9 +6,9 @@ from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           planned_shards_and_merge, shards_then_merge)
+                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.tracking import Tracker
-from tasks.artifacts import Manifest, code_version, upstream_hashes
+from tasks.artifacts import Manifest, code_version
 from tasks.scenes import (RENDER_CODE_DIRS, SCENES_CODE_DIRS, SPLITS, scenes_merge_task,
                           scenes_shard_task)
 from tasks.units import UnitSpec, make_spec
@@ -53,12 +53,9 @@ def shard_plan(cfg: PipelineConfig, run_id: str | None = None, tracking_uri: str
 def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
     """Spec of the merge unit, keyed by the shard manifests it combines."""
-    return make_spec(stage=STAGE, unit="merge",
-                     section_digest=section_digest(cfg, "scenes.renders", "scenes.camera", "hand",
-                                                   extra=cfg.tracking.renders),
-                     upstream=upstream_hashes((s.unit, s) for s in shards),
-                     code=code_version(*SCENES_CODE_DIRS, *RENDER_CODE_DIRS), workdir=cfg.run.workdir,
-                     run_id=run_id, tracking_uri=tracking_uri)
+    section = section_digest(cfg, "scenes.renders", "scenes.camera", "hand", extra=cfg.tracking.renders)
+    return merge_unit_spec(cfg, STAGE, shards, section, code_version(*SCENES_CODE_DIRS, *RENDER_CODE_DIRS), run_id,
+                           tracking_uri)
 
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:

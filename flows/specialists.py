@@ -10,8 +10,8 @@ from components.execution.clustering import assign_bins
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           planned_shards_and_merge, shards_then_merge)
-from tasks.artifacts import Manifest, code_version, digest, upstream_hashes
+                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from tasks.artifacts import Manifest, code_version, digest
 from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task
 from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
@@ -45,9 +45,8 @@ def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | N
 
 def merge_spec(cfg: PipelineConfig, bins: list[Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
-    return make_spec(stage=STAGE, unit="merge", section_digest=section_digest(cfg, "specialists.clustering"),
-                     upstream=upstream_hashes((m.unit, m) for m in bins), code=code_version("tasks/specialists.py"),
-                     workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+    return merge_unit_spec(cfg, STAGE, bins, section_digest(cfg, "specialists.clustering"),
+                           code_version("tasks/specialists.py"), run_id, tracking_uri)
 
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:

@@ -8,8 +8,8 @@ from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           planned_shards_and_merge, shards_then_merge)
-from tasks.artifacts import Manifest, code_version, digest, upstream_hashes
+                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from tasks.artifacts import Manifest, code_version, digest
 from tasks.synthesize import SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_shard_task
 from tasks.synthesize_merge import MERGE_CODE_DIRS, synthesize_merge_task
 from tasks.tracking import Tracker
@@ -62,12 +62,9 @@ def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None,
 def merge_spec(cfg: PipelineConfig, shards: list[Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
     """Spec of the merge unit, keyed by the shard manifests it combines."""
-    return make_spec(stage=STAGE, unit="merge",
-                     section_digest=section_digest(cfg, "synthesis.renders_per_combination", "synthesis.camera",
-                                                   "synthesis.histogram_bins", "hand", "objects",
-                                                   extra=cfg.tracking.renders),
-                     upstream=upstream_hashes((s.unit, s) for s in shards), code=code_version(*MERGE_CODE_DIRS),
-                     workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
+    section = section_digest(cfg, "synthesis.renders_per_combination", "synthesis.camera", "synthesis.histogram_bins",
+                             "hand", "objects", extra=cfg.tracking.renders)
+    return merge_unit_spec(cfg, STAGE, shards, section, code_version(*MERGE_CODE_DIRS), run_id, tracking_uri)
 
 
 def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[UnitSpec]:
