@@ -48,10 +48,6 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
     from tasks.preflight import cache_dir
     from tasks.synthesize_merge import render_grasp_rgb, render_grid
 
-    manifest = stage_output(cfg, "train-generator")
-    if manifest is None:
-        raise MultigraspError("no trained generator for this config — run `multigrasp run --until train-generator` "
-                              "first (same --profile / --config / --set)")
     if n < 1:
         raise MultigraspError(f"--n must be at least 1 (got {n})")
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
@@ -66,7 +62,11 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
             raise MultigraspError("give --objects (e.g. --objects cube,cylinder) or --placement FILE")
         scene = sample_scene(library, objects, np.random.default_rng(seed), cfg.scenes.sampling)
     for name in scene.names:
-        library.get(name)  # unknown names / bad meshes: the library's one-line error
+        library.get(name)  # unknown names / bad meshes: the library's one-line error (before the generator check)
+    manifest = stage_output(cfg, "train-generator")
+    if manifest is None:
+        raise MultigraspError("no trained generator for this config — run `multigrasp run --until train-generator` "
+                              "first (same --profile / --config / --set)")
     stage = cfg.generator
     hand = HandModel(cfg.hand)
     model = load_generator(manifest.path("generator"))

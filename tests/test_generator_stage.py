@@ -69,6 +69,13 @@ def test_generate_without_a_trained_generator_names_the_command(tmp_path, capsys
     assert "multigrasp run --until train-generator" in capsys.readouterr().err
 
 
+def test_generate_names_an_unknown_object_before_asking_for_a_training(tmp_path, capsys):
+    """A typo in --objects is reported as such, not as a missing generator (which training would not fix)."""
+    assert main(["generate", "--objects", "cube,banana", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown object 'banana'" in err and "train-generator" not in err
+
+
 def test_generate_with_an_unknown_object_is_a_one_line_error(trained, capsys):
     _, base, _, _ = trained
     assert main(["generate", "--objects", "cube,banana", *base]) == 2
