@@ -20,7 +20,7 @@ from components.errors import MultigraspError
 from flows.config import PipelineConfig, RunConfig
 from tasks.artifacts import Manifest, upstream_hashes
 from tasks.tracking import Tracker, default_tracking_uri
-from tasks.units import make_spec, records_dir
+from tasks.units import UnitSpec, make_spec, records_dir
 
 log = logging.getLogger("multigrasp")
 
@@ -287,7 +287,7 @@ def log_loss_history(tracker, result: StageResult, artifact_path: str) -> None:
 
 
 def merge_unit_spec(cfg: PipelineConfig, stage: str, shards: list[Manifest], section_digest: str, code: str,
-                    run_id: str | None = None, tracking_uri: str | None = None):
+                    run_id: str | None = None, tracking_uri: str | None = None) -> UnitSpec:
     """Spec of a shards-then-merge stage's ``merge`` unit: keyed by the stage's merge settings
     (``section_digest``), the shard manifests it combines and the merge code (``code``)."""
     return make_spec(stage=stage, unit="merge", section_digest=section_digest,
