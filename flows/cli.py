@@ -41,7 +41,7 @@ def _config_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("configuration")
     group.add_argument("--profile", default="smoke",
                        help="profile in configs/: smoke (minutes on a laptop, plumbing only), mini (~75 min: one "
-                            "pair, real data), bench (the scaled-down full experiment; stage budgets not yet tuned, "
+                            "pair, real data), bench (the scaled-down full experiment on 2 CPU cores: hours per stage, "
                             "see README), paper (the paper's scale, GPU/cluster). Default: smoke")
     group.add_argument("--config", type=Path, metavar="FILE", help="YAML file merged over the profile")
     group.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
@@ -117,11 +117,14 @@ def build_parser() -> argparse.ArgumentParser:
     ge.add_argument("--seed", type=int, default=0, help="seed of the scene sampling and of the diffusion noise")
     _config_args(ge)
 
-    ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split)",
+    ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split; execution: lift success)",
                         description="Write an evaluation table to <workdir>/results/ (JSON + markdown) and log it "
                                     "to its own MLflow run. `pregrasp --source synthetic` measures the grasps of "
                                     "the synthesize stage per split (Syn-Pl, Syn-Com, Syn-Geo: dual-object, as the paper; "
-                                    "Syn-train-pairs; Syn-Pl-singles, Syn-Geo-singles).")
+                                    "Syn-train-pairs; Syn-Pl-singles, Syn-Geo-singles); `pregrasp --source generated` scores the "
+                                    "trained generator's pre-grasps on the evaluation scenes (Gen-Pl, Gen-Com, Gen-Geo); "
+                                    "`execution` lifts Syn-Pl / Syn-Com / Syn-Geo pre-grasps with the matching "
+                                    "specialists (5 seeded trials per pose by default).")
     ev.add_argument("target", choices=["pregrasp", "execution"],
                     help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
     ev.add_argument("--source", choices=["synthetic", "generated"], default=None,
