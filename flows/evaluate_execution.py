@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig, with_overrides
+from flows.config import PipelineConfig, section_digest, with_overrides
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
@@ -102,9 +102,28 @@ def _stage_outputs(cfg: PipelineConfig):
     return outputs
 
 
+def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, memo: dict) -> list:
+    """End-of-reach records of ``group`` (:func:`tasks.reach.reach_records`), each pose reached once per reach /
+    lift / hand / objects setting: ``memo`` maps (that setting's digest, the record's digest) to the end-of-reach
+    record, so the ablations that only change the specialists lift the Syn-Pl poses from the reaches
+    already run instead of planning and executing them again (~2.5 s each)."""
+    from components.execution.records import record_to_dict
+    from tasks.artifacts import digest
+    from tasks.reach import reach_records
+
+    setting = section_digest(cfg, "reach.reaching", "lift", "hand", "objects")
+    keys = [(setting, digest(record_to_dict(r))) for r in group]
+    todo = [(key, r) for key, r in zip(keys, group) if key not in memo]
+    if todo:
+        ends = reach_records([r for _, r in todo], cfg.reach.reaching, cfg.lift, hand, library, urdf)
+        memo.update({key: end for (key, _), end in zip(todo, ends)})
+    return [memo[key] for key in keys]
+
+
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
-                   gifs: bool = True) -> SplitResult:
-    """Lift the first ``eval_poses`` pre-grasps of ``split`` with their matching specialists (module docstring)."""
+                   gifs: bool = True, reach_memo: dict | None = None) -> SplitResult:
+    """Lift the first ``eval_poses`` pre-grasps of ``split`` with their matching specialists (module docstring).
+    ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`)."""
     from components.execution.clustering import bin_label
     from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
@@ -130,14 +149,14 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     out.used = tuple(sorted(groups))
     if stage.eval_after_reach:  # lift from where the planned reach left hand and objects
         from components.objects import ObjectLibrary
-        from tasks.reach import reach_records
 
+        reach_memo = {} if reach_memo is None else reach_memo
         hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     gif_paths: list[Path] = []
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         if stage.eval_after_reach:
-            group = reach_records(group, cfg.reach.reaching, cfg.lift, hand, library, Path(entry["folder"]) / "hand.urdf")
+            group = reached_once(group, cfg, hand, library, Path(entry["folder"]) / "hand.urdf", reach_memo)
             out.reached += len(group)
         factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
                                  objects_cache=str(cache_dir(cfg.run.workdir)),
@@ -179,8 +198,9 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
     results = cfg.run.workdir / "results"
     scratch = results / "execution"
     rows, ablation, gifs = [], [], []
+    reach_memo: dict = {}  # with eval_after_reach: each pose is reached once for all the rows below
     for setting, split in EXECUTION_SETTINGS:
-        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl")
+        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl", reach_memo=reach_memo)
         gifs += res.gifs
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used),
@@ -201,7 +221,8 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
             continue
         variant = with_overrides(cfg, overrides)
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
-        res = evaluate_split(variant, _stage_outputs(variant), "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"), gifs=False)
+        res = evaluate_split(variant, _stage_outputs(variant), "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"),
+                             gifs=False, reach_memo=reach_memo)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
     specialists = outputs["specialists"]

@@ -139,6 +139,37 @@ def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(r
     assert all(r.meta["reached"] and "object_displacement_m" in r.meta for r in reached)
 
 
+def test_each_pose_is_reached_once_per_reach_setting(monkeypatch):
+    """evaluate execution's ablations lift the same Syn-Pl poses again: their reaches are reused, and only a change
+    of the reach / lift / hand / objects setting (or another pose) reaches again."""
+    import numpy as np
+
+    import tasks.reach
+    from components.execution.records import GraspRecord
+    from components.objects import Placement, Scene
+    from flows.config import load_config, with_overrides
+    from flows.evaluate_execution import reached_once
+
+    calls = []
+
+    def fake_reach(records, *args, **kwargs):
+        calls.append(len(records))
+        return [GraspRecord(scene=r.scene, p=r.p + 0.01, R=r.R, q=r.q, meta={**r.meta, "reached": True}) for r in records]
+
+    monkeypatch.setattr(tasks.reach, "reach_records", fake_reach)
+    scene = Scene(objects=(Placement(name="cube", position=(0.0, 0.0, 0.55), quat_xyzw=(0.0, 0.0, 0.0, 1.0)),))
+    poses = [GraspRecord(scene=scene, p=np.array([0.0, 0.0, 0.6 + k / 100]), R=np.eye(3), q=np.zeros(22),
+                         meta={"row": k}) for k in range(3)]
+    cfg, memo = load_config("smoke"), {}
+    first = reached_once(poses[:2], cfg, None, None, None, memo)
+    again = reached_once(poses, cfg, None, None, None, memo)  # two known poses, one new
+    assert calls == [2, 1]
+    assert all(a is b for a, b in zip(again[:2], first)) and [r.meta["row"] for r in again] == [0, 1, 2]
+    assert np.allclose(again[2].p, poses[2].p + 0.01)
+    reached_once(poses, with_overrides(cfg, {"reach.reaching.waypoints": 7}), None, None, None, memo)
+    assert calls == [2, 1, 3]  # another reach setting: reached again
+
+
 def test_evaluate_execution_without_the_stages_names_the_command(tmp_path, capsys):
     assert main(["evaluate", "execution", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
     assert "multigrasp run --until specialists" in capsys.readouterr().err
