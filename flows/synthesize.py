@@ -33,6 +33,14 @@ def selected_scenes(cfg: PipelineConfig, scenes: Manifest) -> list[dict[str, Any
     return picked
 
 
+def shard_name(chunk: list[dict[str, Any]]) -> str:
+    """A shard's unit name from the ids of the scenes it holds (``shard-Pl:cube+cylinder:0``, or
+    ``shard-<first>..<last>`` for several), so that its cache key does not depend on its position in the plan:
+    adding a split or a combination leaves the shards already synthesised cached."""
+    ids = [str(record["id"]).replace("/", ":") for record in chunk]
+    return f"shard-{ids[0]}" if len(ids) == 1 else f"shard-{ids[0]}..{ids[-1]}"
+
+
 def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None, tracking_uri: str | None = None
                ) -> list[tuple[UnitSpec, list[dict[str, Any]]]]:
     """Unit specs of the shards and the scene records each synthesises.
@@ -40,19 +48,19 @@ def shard_plan(cfg: PipelineConfig, scenes: Manifest, run_id: str | None = None,
     A shard's key covers the scene contents it reads (not the whole scenes manifest), the optimiser setting its
     scenes use (``synthesis.optimizer`` with the ``optimizer_by_object_count`` fields of their object counts, so
     editing the 3-object setting leaves the pair shards cached), the metrics / min_q1 / hand / objects config,
-    ``run.seed`` and the component code.
+    ``run.seed`` and the component code.  Shards are named by their scenes (:func:`shard_name`), not numbered.
     """
     records = selected_scenes(cfg, scenes)
     size = cfg.synthesis.scenes_per_shard
     code = code_version(*SYNTHESIS_CODE_DIRS)
     plan = []
-    for number, start in enumerate(range(0, len(records), size)):
+    for start in range(0, len(records), size):
         chunk = records[start:start + size]
         optimizers = {n: cfg.synthesis.optimizer_for(n).model_dump(mode="json")
                       for n in sorted({len(r["objects"]) for r in chunk})}
         base = section_digest(cfg, "hand", "objects", "synthesis.metrics", "synthesis.min_q1", "run.seed",
                               extra=optimizers)
-        spec = make_spec(stage=STAGE, unit=f"shard-{number:03d}", section_digest=base,
+        spec = make_spec(stage=STAGE, unit=shard_name(chunk), section_digest=base,
                          upstream={"scenes": digest(chunk)[:20]}, code=code, workdir=cfg.run.workdir,
                          run_id=run_id, tracking_uri=tracking_uri)
         plan.append((spec, chunk))

@@ -1,7 +1,7 @@
 """The ``synthesize`` stage: multi-object pre-grasps for every settled scene (paper §Preliminaries).
 
 Units:
-- ``shard-NNN`` — run :func:`components.synthesis.synthesize` on a few scenes of the ``scenes``
+- ``shard-<scene id>`` — run :func:`components.synthesis.synthesize` on a few scenes of the ``scenes``
   stage (each scene seeded from ``run.seed`` and its id), measure Q1 and PN of the accepted
   candidates (NaN for rejected ones) and write every candidate row to ``grasps.parquet``.
 - ``merge`` (:mod:`tasks.synthesize_merge`, its own module so that editing reports or renders never

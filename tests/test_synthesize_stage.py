@@ -170,8 +170,9 @@ def test_user_mesh_scene_is_synthesised(stage_runs):
 @pytest.mark.slow
 def test_second_run_serves_every_unit_from_cache(stage_runs):
     _, first, after_second = stage_runs
-    assert sorted(set(first)) == ["scenes/merge", "scenes/shard-000", "synthesize/merge", "synthesize/shard-000",
-                                  "synthesize/shard-001", "synthesize/shard-002"]
+    units = sorted(set(first))
+    assert units[:2] == ["scenes/merge", "scenes/shard-000"] and units[2] == "synthesize/merge"
+    assert len(units) == 6 and all(u.startswith("synthesize/shard-") for u in units[3:])  # 7 scenes, 3 per shard
     assert after_second == first
 
 
@@ -253,11 +254,13 @@ def test_rerun_after_a_crashed_shard_recomputes_only_unfinished_units(stage_runs
     with pytest.raises(RuntimeError, match="simulated crash"):
         _run(workdir, stage_config, *variant)
     first = executions(workdir)[before:]
-    assert sorted(first) == ["synthesize/shard-000", "synthesize/shard-001", "synthesize/shard-002"]
+    assert len(first) == 3 and all(u.startswith("synthesize/shard-") for u in first)
+    crashed = [u for u in first if "Geo:" in u]
+    assert len(crashed) == 1
 
     monkeypatch.setattr(tasks.synthesize, "synthesize_shard", real)
     assert _run(workdir, stage_config, *variant) == 0
-    assert executions(workdir)[before + len(first):] == ["synthesize/shard-002", "synthesize/merge"]
+    assert executions(workdir)[before + len(first):] == [*crashed, "synthesize/merge"]
 
 
 @pytest.mark.slow
@@ -279,6 +282,28 @@ def test_merge_code_is_outside_the_shard_cache_keys():
 
     assert "tasks/synthesize_merge.py" in MERGE_CODE_DIRS
     assert not any(d.startswith("tasks/synthesize_merge") for d in SYNTHESIS_CODE_DIRS)
+
+
+def test_adding_a_split_keeps_the_shards_already_synthesised(monkeypatch):
+    """Shards are named by their scenes, so a plan that gains the train split keeps the Pl shards' keys."""
+    import flows.synthesize
+    from flows.config import load_config
+
+    def records(split, combos):
+        return [{"id": f"{split}/{c}/0", "split": split, "objects": c.split("+"), "index": 0, "scene": {"c": c}}
+                for c in combos]
+
+    scenes = records("train", ["cube", "cube+sphere"]) + records("Pl", ["cube+cylinder", "cylinder+sphere"])
+    monkeypatch.setattr(flows.synthesize, "read_scene_records", lambda manifest: scenes)
+
+    def keys(*sets):
+        cfg = load_config("smoke", None, ["synthesis.scenes_per_shard=1", *sets])
+        return {spec.unit: spec.key for spec, _ in flows.synthesize.shard_plan(cfg, None)}
+
+    pl_only, both = keys("synthesis.splits=[Pl]"), keys("synthesis.splits=[train,Pl]")
+    assert sorted(pl_only) == ["shard-Pl:cube+cylinder:0", "shard-Pl:cylinder+sphere:0"]
+    assert len(both) == 4 and all(both[unit] == key for unit, key in pl_only.items())
+    assert flows.synthesize.shard_name(scenes[:2]) == "shard-train:cube:0..train:cube+sphere:0"
 
 
 def test_min_q1_rejects_accepted_rows_that_are_not_above_it():
