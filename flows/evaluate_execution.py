@@ -2,7 +2,9 @@
 
 Settings (paper §"Experiments"): ``Syn-Pl`` / ``Syn-Com`` / ``Syn-Geo`` = the synthesised dual-object pre-grasps
 of the ``Pl`` / ``Com`` / ``Geo`` scene splits (same ``specialists.records_source`` rule as training; the splits'
-singles are left out, as the paper's table is about two objects), the first ``specialists.eval_poses`` of each.  Each pre-grasp is lifted by its *matching specialist*: the one of its
+singles are left out, as the paper's table is about two objects), ``specialists.eval_poses`` of each, evenly spread
+over the split's pre-grasps in scene order (:func:`tasks.specialists.spread_records`), so every combination keeps its
+share (until the nineteenth session: the first ``eval_poses``, i.e. the first few combinations).  Each pre-grasp is lifted by its *matching specialist*: the one of its
 own bin when it exists (unseen placements of seen combinations), else the largest specialist of the same
 placement sector and object count (unseen combinations / geometries), else the largest of the same object
 count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`), from the pre-grasp
@@ -122,7 +124,7 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True, reach_memo: dict | None = None) -> SplitResult:
-    """Lift the first ``eval_poses`` pre-grasps of ``split`` with their matching specialists (module docstring).
+    """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
     ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`)."""
     from components.execution.clustering import bin_label
     from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
@@ -131,7 +133,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     from components.execution.records import save_records
     from tasks.preflight import cache_dir
     from components.hand import HandModel
-    from tasks.specialists import select_records, squeeze_lift
+    from tasks.specialists import select_records, spread_records, squeeze_lift
 
     stage = cfg.specialists
     index = json.loads(outputs["specialists"].path("index").read_text())
@@ -140,7 +142,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     squeeze = squeeze_lift(stage, HandModel(cfg.hand).actuated_joint_names) if scripted else None
     records = [r for r in select_records(outputs["synthesize"], stage, [split])
                if len(r.scene.objects) == EVALUATED_OBJECTS]
-    for record in records[: stage.eval_poses]:
+    for record in spread_records(records, stage.eval_poses):
         match = matching_specialist(bin_label(record, stage.clustering), index)
         if match is None:
             out.unmatched += 1

@@ -3,7 +3,6 @@ PyBullet; the end-of-reach states are recorded (``tasks.reach``)."""
 
 from __future__ import annotations
 
-import numpy as np
 from prefect import flow
 
 from components.execution.records import record_to_dict
@@ -12,7 +11,7 @@ from flows.runtime import (StageProgress, StageResult, make_console, make_task_r
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.reach import REACH_CODE_DIRS, reach_merge_task, reach_shard_task
-from tasks.specialists import select_records
+from tasks.specialists import select_records, spread_records
 from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
 
@@ -26,10 +25,8 @@ def shard_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str |
     """(spec, records as dicts) of every shard: the specialists' pre-grasps, at most ``reach.max_records`` of them
     evenly spread over that list (which is in scene order, so every combination keeps its share)."""
     stage = cfg.reach
-    records = select_records(upstream["synthesize"], cfg.specialists, cfg.specialists.splits)
-    if stage.max_records and len(records) > stage.max_records:
-        picked = np.linspace(0, len(records) - 1, stage.max_records).round().astype(int)
-        records = [records[i] for i in picked]
+    records = spread_records(select_records(upstream["synthesize"], cfg.specialists, cfg.specialists.splits),
+                             stage.max_records)
     dicts = [record_to_dict(r) for r in records]
     base = section_digest(cfg, "reach.reaching", "lift", "hand", "objects")
     code = code_version(*REACH_CODE_DIRS)

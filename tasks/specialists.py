@@ -115,6 +115,15 @@ def select_records(synthesis: Manifest, stage: SpecialistsStageConfig, splits: l
     return records_from_table(frame) if len(frame) else []
 
 
+def spread_records(records: list, n: int) -> list:
+    """At most ``n`` of ``records``, evenly spread over the list (in scene order, so every combination keeps its
+    share: the first ``n`` would be the first few combinations only); all of them when ``n`` is 0 or covers them."""
+    if not n or len(records) <= n:
+        return list(records)
+    picked = np.linspace(0, len(records) - 1, n).round().astype(int)
+    return [records[i] for i in picked]
+
+
 # --------------------------------------------------------------------------- scripted controllers
 
 

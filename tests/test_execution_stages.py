@@ -187,6 +187,18 @@ def test_matching_specialist_prefers_the_own_bin_then_the_sector_then_the_object
     assert matching_specialist("a+b+c/1", index) is None
 
 
+def test_evaluated_poses_are_spread_over_every_combination():
+    """eval_poses (and reach.max_records) take poses across the scene-ordered list, not its head."""
+    from tasks.specialists import spread_records
+
+    records = [f"{combo}-{i}" for combo in ("a+b", "a+c", "b+c", "c+d") for i in range(25)]
+    picked = spread_records(records, 8)
+    assert len(picked) == 8 and picked[0] == "a+b-0" and picked[-1] == "c+d-24"
+    assert {r.split("-")[0] for r in picked} == {"a+b", "a+c", "b+c", "c+d"}
+    assert [r.split("-")[0] for r in picked].count("a+b") == 2
+    assert spread_records(records[:5], 8) == records[:5] and spread_records(records, 0) == records
+
+
 def test_evaluate_execution_with_ablations_trains_and_evaluates_the_variants(runs, monkeypatch):
     import flows.evaluate_execution as ev
 
