@@ -6,6 +6,8 @@ Div per combination and for singles / pairs / more, from the shard tables on dis
 Reads every ``<stage-dir>/*/grasps.parquet`` written by a shard (the merge unit's table, which repeats the
 accepted rows, is skipped), so it can be pointed at a running or interrupted stage.  Q1 / PN are the
 shards' own (``synthesis.metrics``), Div is :func:`components.metrics.joint_diversity_deg` over the accepted q.
+A scene synthesised by several shards (an earlier config or code version in the same work dir) counts once, from
+the newest shard table (``superseded_rows`` says how many older rows were dropped); ``--split`` keeps some splits.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from benchmarks.grasp_tables import finish_tool, row_report
 from components.errors import MultigraspError
 
 COLUMNS = ["combination", "accepted", "reason", "q1", "pn_mm", "q"]
+#: Read too where the table has them: the split filter and the one-row-per-candidate rule use them.
+OPTIONAL_COLUMNS = ["split", "scene_id", "row"]
 GROUPS = {1: "singles", 2: "pairs"}
 
 
@@ -50,25 +54,48 @@ def shard_tables(stage_dir: Path) -> list[Path]:
     return tables
 
 
-def run(stage_dir: Path) -> dict:
+def read_tables(tables: list[Path]):
+    """The shard tables as one frame, oldest first, each candidate (scene id, row) once: the newest table's."""
     import pandas as pd
+    import pyarrow.parquet as pq
 
+    frames = []
+    for path in sorted(tables, key=lambda p: p.stat().st_mtime):
+        names = set(pq.read_schema(path).names)
+        frames.append(pd.read_parquet(path, columns=COLUMNS + [c for c in OPTIONAL_COLUMNS if c in names]))
+    frame = pd.concat(frames, ignore_index=True)
+    before = len(frame)
+    if {"scene_id", "row"} <= set(frame.columns):
+        frame = frame.drop_duplicates(["scene_id", "row"], keep="last")
+    return frame, before - len(frame)
+
+
+def run(stage_dir: Path, splits: list[str] | None = None) -> dict:
     tables = shard_tables(stage_dir)
-    frame = pd.concat([pd.read_parquet(p, columns=COLUMNS) for p in tables], ignore_index=True)
+    frame, superseded = read_tables(tables)
+    if splits:
+        if "split" not in frame.columns:
+            raise MultigraspError(f"the shard tables under {stage_dir} have no split column; run without --split")
+        frame = frame[frame.split.isin(splits)]
+        if not len(frame):
+            raise MultigraspError(f"no rows of split(s) {', '.join(splits)} under {stage_dir}; check --split")
     objects = frame["combination"].str.count(r"\+") + 1
     rows = [{"combination": name, **quality_summary(group)} for name, group in frame.groupby("combination")]
     rows.sort(key=lambda r: (r["combination"].count("+"), r["combination"]))
     groups = {GROUPS.get(n, f"{n} objects"): {"combinations": int(frame[objects == n].combination.nunique()),
                                               **quality_summary(frame[objects == n])} for n in sorted(objects.unique())}
-    return {"stage_dir": str(stage_dir), "shards": len(tables), "groups": groups, "rows": rows}
+    return {"stage_dir": str(stage_dir), "shards": len(tables), "splits": splits or "all",
+            "superseded_rows": int(superseded), "groups": groups, "rows": rows}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.synthesis_progress", description=__doc__.split("\n\n")[0])
     parser.add_argument("--stage-dir", type=Path, required=True, help="<workdir>/stages/synthesize")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    parser.add_argument("--split", action="append", default=None,
+                        help="keep only this split's scenes (train, Pl, Com, Geo, many); repeat for several")
     args = parser.parse_args(argv)
-    return finish_tool(args.json, lambda: run(args.stage_dir), row_report(
+    return finish_tool(args.json, lambda: run(args.stage_dir, args.split), row_report(
         lambda row: f"{row['combination']:28s} {row['accepted']:4d}/{row['candidates']:<4d} Q1 {row['q1']}  "
                     f"PN {row['pn_mm']}  rejected {row['reasons']}"))
 

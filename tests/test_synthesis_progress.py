@@ -38,3 +38,24 @@ def test_empty_stage_dir_is_one_line(tmp_path, capsys):
     assert main(["--stage-dir", str(tmp_path), "--json", str(tmp_path / "x.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: no shard tables") and "\n" not in err
+
+
+def test_split_filter_and_newest_table_per_candidate(tmp_path):
+    import os
+
+    stage = tmp_path / "synthesize"
+    for name, split, accepted in (("old", "Pl", False), ("new", "Pl", True), ("t", "train", True)):
+        folder = stage / name
+        folder.mkdir(parents=True)
+        rows = [{"combination": "cube+sphere", "accepted": accepted, "reason": "accepted" if accepted else "fc",
+                 "q1": 0.1 if accepted else float("nan"), "pn_mm": 1.0, "q": [0.1 * i] * 22, "split": split,
+                 "scene_id": f"{split}/cube+sphere/0", "row": i} for i in range(2)]
+        pd.DataFrame(rows).to_parquet(folder / "grasps.parquet")
+    os.utime(stage / "old" / "grasps.parquet", (1, 1))  # an earlier run's shard of the same scene
+    out = tmp_path / "p.json"
+    assert main(["--stage-dir", str(stage), "--json", str(out), "--split", "Pl"]) == 0
+    result = json.loads(out.read_text())
+    assert result["superseded_rows"] == 2 and result["splits"] == ["Pl"]
+    assert (result["groups"]["pairs"]["accepted"], result["groups"]["pairs"]["candidates"]) == (2, 2)
+    assert main(["--stage-dir", str(stage), "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["groups"]["pairs"]["candidates"] == 4
