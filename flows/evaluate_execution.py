@@ -24,9 +24,10 @@ markdown table, are logged to their own MLflow run.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, section_digest, with_overrides
@@ -123,9 +124,11 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 
 
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
-                   gifs: bool = True, reach_memo: dict | None = None) -> SplitResult:
+                   gifs: bool = True, reach_memo: dict | None = None,
+                   say: Callable[[str], None] | None = None, title: str = "") -> SplitResult:
     """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
-    ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`)."""
+    ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`).  ``say``: receives a
+    progress line (counts, elapsed, ETA) as each specialist's poses finish."""
     from components.execution.clustering import bin_label
     from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
@@ -155,6 +158,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         reach_memo = {} if reach_memo is None else reach_memo
         hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     gif_paths: list[Path] = []
+    progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups))
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         if stage.eval_after_reach:
@@ -182,10 +186,30 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                 held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed)
                 out.squeeze_wins += sum(held.successes_per_pose)
                 out.squeeze_total += held.n_poses * held.trials
+            progress.specialist_done(label, len(group), out, scripted)
         finally:
             env.close()
     out.gifs = tuple(gif_paths)
     return out
+
+
+class _Progress:
+    """Log lines of one evaluated split: what it will do, then counts, elapsed and ETA per specialist."""
+
+    def __init__(self, say: Callable[[str], None] | None, title: str, poses: int, trials: int, specialists: int):
+        self.say, self.title, self.poses, self.done = say or (lambda _: None), title, poses, 0
+        self.start = time.monotonic()
+        self.say(f"[bold cyan]evaluate execution[/] {title}: {poses} pose(s) x {trials} trial(s) with "
+                 f"{specialists} specialist(s)")
+
+    def specialist_done(self, label: str, poses: int, out: SplitResult, scripted: bool) -> None:
+        self.done += poses
+        elapsed = time.monotonic() - self.start
+        eta = f", ETA {elapsed / self.done * (self.poses - self.done):.0f}s" if self.done < self.poses else ""
+        extra = (f", w/o RL {out.scripted_wins}/{out.scripted_total}, squeeze {out.squeeze_wins}/{out.squeeze_total}"
+                 if scripted else "")
+        self.say(f"[bold cyan]evaluate execution[/] {self.title} {self.done}/{self.poses} poses (specialist {label}): "
+                 f"lifted {out.wins}/{out.total}{extra}, elapsed {elapsed:.0f}s{eta}")
 
 
 def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> ExecutionReport:
@@ -193,16 +217,18 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
     :data:`ABLATIONS` config are trained first (the specialists stage with those overrides: cached units)."""
     from flows import specialists as specialists_stage
     from flows.pipeline import run_pipeline
-    from flows.runtime import make_tracker
+    from flows.runtime import make_console, make_tracker
 
     stage = cfg.specialists
+    say = make_console().print
     outputs = _stage_outputs(cfg)
     results = cfg.run.workdir / "results"
     scratch = results / "execution"
     rows, ablation, gifs = [], [], []
     reach_memo: dict = {}  # with eval_after_reach: each pose is reached once for all the rows below
     for setting, split in EXECUTION_SETTINGS:
-        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl", reach_memo=reach_memo)
+        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl", reach_memo=reach_memo,
+                             say=say, title=setting)
         gifs += res.gifs
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used),
@@ -224,7 +250,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         variant = with_overrides(cfg, overrides)
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
         res = evaluate_split(variant, _stage_outputs(variant), "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"),
-                             gifs=False, reach_memo=reach_memo)
+                             gifs=False, reach_memo=reach_memo, say=say, title=name)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
     specialists = outputs["specialists"]

@@ -87,7 +87,7 @@ def test_mlflow_has_the_learning_curves(runs):
     assert len(client.get_metric_history(computed[0].info.run_id, key)) == 2
 
 
-def test_evaluate_execution_writes_the_success_tables(runs, tmp_path):
+def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     workdir, _, _ = runs
     config = next((workdir.parent).glob("exec-config*/stage.yaml"))
     argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
@@ -107,6 +107,10 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path):
     assert (ablation[2]["succ"] is None) == (ablation[1]["succ"] is None) and "not in the paper" in ablation[2]["note"]
     assert ablation[2]["n_poses"] == ablation[1]["n_poses"]
     assert all(r["succ"] is None and "--ablations" in r["missing"] for r in ablation[3:])
+    err = capsys.readouterr().err  # progress: one line per split, then counts per specialist
+    assert "evaluate execution Syn-Pl:" in err and "evaluate execution Syn-Geo:" in err
+    if rows[0]["n_poses"]:
+        assert "lifted " in err and "w/o RL " in err
 
 
 def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(runs, monkeypatch):
