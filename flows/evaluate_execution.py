@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import time
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -161,6 +162,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups))
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
+        keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
         if stage.eval_after_reach:
             group = reached_once(group, cfg, hand, library, Path(entry["folder"]) / "hand.urdf", reach_memo)
             out.reached += len(group)
@@ -172,7 +174,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         env = factory()
         try:
             actor = load_actor(Path(entry["policy"]), env)
-            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed)
+            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys)
             out.wins += sum(result.successes_per_pose)
             out.total += result.n_poses * result.trials
             out.poses += result.n_poses
@@ -180,10 +182,10 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                 gif_paths += _outcome_gifs(env, actor, result, stage, scratch / name, rollout_gif, trial_seed)
             if scripted:
                 base = evaluate_lift(env, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                     seed=stage.eval_seed)
+                                     seed=stage.eval_seed, seed_keys=keys)
                 out.scripted_wins += sum(base.successes_per_pose)
                 out.scripted_total += base.n_poses * base.trials
-                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed)
+                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys)
                 out.squeeze_wins += sum(held.successes_per_pose)
                 out.squeeze_total += held.n_poses * held.trials
             progress.specialist_done(label, len(group), out, scripted)
@@ -191,6 +193,16 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
             env.close()
     out.gifs = tuple(gif_paths)
     return out
+
+
+def pose_key(record, index: int) -> int:
+    """The integer a pre-grasp's trial seeds derive from: its scene id and table row, so the same pose gets the
+    same perturbations whichever specialist (or ablation, or bin grouping) lifts it, and the rows of the ablation
+    table are paired comparisons; records without them fall back to their index."""
+    meta = getattr(record, "meta", None) or {}
+    if "scene_id" not in meta or "row" not in meta:
+        return index
+    return zlib.crc32(f"{meta['scene_id']}#{meta['row']}".encode())
 
 
 class _Progress:
@@ -285,7 +297,7 @@ def _outcome_gifs(env, actor, result, stage, folder: Path, rollout_gif, trial_se
             possible = {True} if wins == result.trials else {False} if wins == 0 else {True, False}
             if not any(left[o] for o in possible):
                 break
-            path, success = rollout_gif(env, actor, pose, trial_seed(stage.eval_seed, pose, trial),
+            path, success = rollout_gif(env, actor, pose, trial_seed(stage.eval_seed, result.seed_keys[pose], trial),
                                         folder / f"pose{pose}_trial{trial}.gif")
             if left[success]:
                 left[success] -= 1

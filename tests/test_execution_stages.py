@@ -191,6 +191,18 @@ def test_matching_specialist_prefers_the_own_bin_then_the_sector_then_the_object
     assert matching_specialist("a+b+c/1", index) is None
 
 
+def test_pose_key_follows_the_pre_grasp_not_its_place_in_a_group():
+    """The ablation rows are paired: a pose's trial seeds come from its scene id and row, not its group index."""
+    from types import SimpleNamespace
+
+    from flows.evaluate_execution import pose_key
+
+    a = SimpleNamespace(meta={"scene_id": "Pl/cube+sphere/0", "row": 7})
+    b = SimpleNamespace(meta={"scene_id": "Pl/cube+sphere/0", "row": 8})
+    assert pose_key(a, 0) == pose_key(a, 5) != pose_key(b, 0)
+    assert pose_key(SimpleNamespace(meta={}), 3) == 3
+
+
 def test_evaluated_poses_are_spread_over_every_combination():
     """eval_poses (and reach.max_records) take poses across the scene-ordered list, not its head."""
     from tasks.specialists import spread_records

@@ -147,6 +147,12 @@ def test_evaluation_protocol_with_the_scripted_baseline(factory):
         assert again.final_lifts == result.final_lifts  # seeded trials: repeatable
         chosen = evaluate_lift(env, ScriptedLift(0.5), trials=2, seed=3, poses=[0])  # records by index
         assert chosen.n_poses == 1 and chosen.final_lifts == result.final_lifts
+        # seed keys: the same key gives the same perturbations whatever the pose's index in this env
+        assert result.seed_keys == [0]
+        keyed = evaluate_lift(env, ScriptedLift(0.5), trials=2, seed=3, seed_keys=[0])
+        assert keyed.final_lifts == result.final_lifts and keyed.seed_keys == [0]
+        with pytest.raises(ValueError, match="seed keys"):
+            evaluate_lift(env, ScriptedLift(0.5), trials=2, seed=3, seed_keys=[0, 1])
         assert result.row("Syn-Pl") == {"setting": "Syn-Pl", "succ": 0.0, "n_poses": 1, "trials": 2}
         seeds = {trial_seed(3, pose, trial) for pose in range(100) for trial in range(5)}
         assert len(seeds) == 500

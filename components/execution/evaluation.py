@@ -58,6 +58,7 @@ class LiftEvaluation:
     trials: int
     successes_per_pose: list[int] = field(default_factory=list)
     final_lifts: list[float] = field(default_factory=list)
+    seed_keys: list[int] = field(default_factory=list)  # per evaluated pose, the key its trial seeds came from
 
     def row(self, setting: str) -> dict:
         return {"setting": setting, "succ": round(self.succ, 4), "n_poses": self.n_poses, "trials": self.trials}
@@ -71,19 +72,24 @@ def trial_seed(seed: int, pose: int, trial: int) -> int:
 def evaluate_lift(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase], n_poses: Optional[int] = None,
                   trials: int = 5, seed: int = 0,
                   on_rollout: Optional[Callable[[int, int, TensorDictBase], None]] = None,
-                  poses: Optional[Sequence[int]] = None) -> LiftEvaluation:
+                  poses: Optional[Sequence[int]] = None, seed_keys: Optional[Sequence[int]] = None) -> LiftEvaluation:
     """Run ``trials`` perturbed episodes from each of the first ``n_poses`` records of ``env`` (module
     docstring), or from the records ``poses`` (indices into ``env.records``) when given.
+    ``seed_keys``: one integer per evaluated pose that its trial seeds derive from (default: the record index), e.g.
+    a key of the pre-grasp's identity, so that one pose gets the same perturbations in every env it is evaluated in.
     ``on_rollout(pose, trial, rollout)`` sees every rollout (e.g. to keep a few for GIFs)."""
     if poses is None:
         poses = range(len(env.records) if n_poses is None else min(n_poses, len(env.records)))
     n = len(poses)
+    keys = list(poses) if seed_keys is None else [int(k) for k in seed_keys]
+    if len(keys) != n:
+        raise ValueError(f"evaluate_lift: {len(keys)} seed keys for {n} poses")
     per_pose, lifts = [], []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for pose in poses:
+        for pose, key in zip(poses, keys):
             wins = 0
             for trial in range(trials):
-                env.set_next_record(pose, trial_seed(seed, pose, trial))
+                env.set_next_record(pose, trial_seed(seed, key, trial))
                 rollout = env.rollout(env.cfg.max_steps, policy=policy, break_when_any_done=True)
                 last = rollout[-1]
                 wins += int(bool(last["next", "success"]))
@@ -93,7 +99,7 @@ def evaluate_lift(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBas
             per_pose.append(wins)
     total = n * trials
     return LiftEvaluation(succ=sum(per_pose) / total if total else 0.0, n_poses=n, trials=trials,
-                          successes_per_pose=per_pose, final_lifts=lifts)
+                          successes_per_pose=per_pose, final_lifts=lifts, seed_keys=keys)
 
 
 def rollout_gif(env: LiftEnv, policy: Callable[[TensorDictBase], TensorDictBase], pose: int, seed: int, path,
