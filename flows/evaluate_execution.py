@@ -7,7 +7,8 @@ over the split's pre-grasps in scene order (:func:`tasks.specialists.spread_reco
 share (until the nineteenth session: the first ``eval_poses``, i.e. the first few combinations).  Each pre-grasp is lifted by its *matching specialist*: the one of its
 own bin when it exists (unseen placements of seen combinations), else the largest specialist of the same
 placement sector and object count (unseen combinations / geometries), else the largest of the same object
-count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`), from the pre-grasp
+count.  Every pre-grasp gets ``eval_trials`` seeded, perturbed trials (:func:`evaluate_lift`, seeded by
+:func:`pose_key`: the same perturbations for the same pose in every row and ablation), from the pre-grasp
 itself or, with ``specialists.eval_after_reach``, from where the reach stage's planned reach (``reach.reaching``,
 run once per pose in PyBullet: :func:`tasks.reach.reach_records`) left the hand and the objects.
 
