@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import time
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -76,6 +76,16 @@ def matching_specialist(label: str, index: dict[str, dict]) -> str | None:
     return None
 
 
+def match_kind(label: str, match: str) -> str:
+    """How :func:`matching_specialist` matched a pre-grasp of bin ``label`` to ``match``: 'own bin', 'same sector'
+    or 'same object count' (recorded per setting as ``matched_by``)."""
+    if match == label:
+        return "own bin"
+    if "/" in label and "/" in match and label.rsplit("/", 1)[-1] == match.rsplit("/", 1)[-1]:
+        return "same sector"
+    return "same object count"
+
+
 @dataclass
 class SplitResult:
     """Success of the specialists (and optionally the scripted baseline) on one split's pre-grasps."""
@@ -91,6 +101,7 @@ class SplitResult:
     reached: int = 0  # poses lifted from their end-of-reach state (specialists.eval_after_reach)
     used: tuple[str, ...] = ()
     gifs: tuple[Path, ...] = ()
+    matched_by: dict[str, int] = field(default_factory=dict)  # poses per match_kind
 
     @staticmethod
     def rate(wins: int, total: int) -> float | None:
@@ -148,11 +159,14 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     records = [r for r in select_records(outputs["synthesize"], stage, [split])
                if len(r.scene.objects) == EVALUATED_OBJECTS]
     for record in spread_records(records, stage.eval_poses):
-        match = matching_specialist(bin_label(record, stage.clustering), index)
+        label = bin_label(record, stage.clustering)
+        match = matching_specialist(label, index)
         if match is None:
             out.unmatched += 1
         else:
             groups.setdefault(match, []).append(record)
+            kind = match_kind(label, match)
+            out.matched_by[kind] = out.matched_by.get(kind, 0) + 1
     out.used = tuple(sorted(groups))
     if stage.eval_after_reach:  # lift from where the planned reach left hand and objects
         from components.objects import ObjectLibrary
@@ -245,6 +259,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         gifs += res.gifs
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used),
+               "matched_by": res.matched_by,
                "after_reach": stage.eval_after_reach, "reached_poses": res.reached}
         rows.append(row)
         if setting == "Syn-Pl":

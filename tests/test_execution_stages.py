@@ -100,6 +100,7 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
         assert set(row) >= {"setting", "succ", "n_poses", "trials"} and row["trials"] == 2
         assert row["succ"] is None or 0.0 <= row["succ"] <= 1.0
     assert rows[1]["n_poses"] + rows[1]["unmatched_poses"] >= 1  # the Com pair is evaluated (or said unmatched)
+    assert all(sum(row["matched_by"].values()) == row["n_poses"] for row in rows)
     ablation = json.loads((workdir / "results" / "ablation_execution.json").read_text())["rows"]
     assert [r["setting"] for r in ablation] == ["Ours", "w/o RL", "Scripted squeeze-lift", "w/o Goal", "w/o Spe-Pl",
                                                  "w/o Spe-Com", "w/o Spe"]
@@ -189,6 +190,12 @@ def test_matching_specialist_prefers_the_own_bin_then_the_sector_then_the_object
     assert matching_specialist("duck+sphere/5", index) == "cube+cylinder/0"  # same object count, largest
     assert matching_specialist("duck/2", index) == "cube/0"
     assert matching_specialist("a+b+c/1", index) is None
+    from flows.evaluate_execution import match_kind
+
+    assert [match_kind(lab, matching_specialist(lab, index)) for lab in ("cube+sphere/3", "duck+sphere/3",
+                                                                         "duck+sphere/5")] == \
+        ["own bin", "same sector", "same object count"]
+    assert match_kind("2obj", "2obj") == "own bin"
 
 
 def test_pose_key_follows_the_pre_grasp_not_its_place_in_a_group():
