@@ -13,9 +13,10 @@ itself or, with ``specialists.eval_after_reach``, from where the reach stage's p
 run once per pose in PyBullet: :func:`tasks.reach.reach_records`) left the hand and the objects.
 
 Writes ``<workdir>/results/execution.json`` ``{"rows": [{"setting", "succ", "n_poses", "trials"}]}`` and
-``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the scripted lift on the same poses),
-``Scripted squeeze-lift`` (not in the paper: the constant squeeze-and-lift controller that PPO starts from with
-``specialists.init_policy: squeeze_lift``, on the same poses, so a reader sees what PPO added) and,
+``ablation_execution.json`` with ``Ours`` (= Syn-Pl), ``w/o RL`` (the paper's: the scripted straight lift from
+the pre-grasp itself, on the same poses, without the env's grasp closure), ``Scripted squeeze-lift`` (not in the
+paper: the env's grasp closure, ``lift.closure_*``, then the constant squeeze-and-lift controller that PPO starts
+from with ``specialists.init_policy: squeeze_lift``, on the same poses, so a reader sees what PPO added) and,
 with ``--ablations``, ``w/o Goal``, ``w/o Spe-Pl``, ``w/o Spe-Com``, ``w/o Spe``: the specialists stage is run
 with the overrides of :data:`ABLATIONS` (its own cached units) and evaluated on Syn-Pl the same way;
 without the flag those rows have ``succ: null`` and say how to get them.  Both files, and a
@@ -24,6 +25,7 @@ markdown table, are logged to their own MLflow run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 import zlib
@@ -195,9 +197,15 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
             out.poses += result.n_poses
             if gifs:
                 gif_paths += _outcome_gifs(env, actor, result, stage, scratch / name, rollout_gif, trial_seed)
-            if scripted:
-                base = evaluate_lift(env, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                     seed=stage.eval_seed, seed_keys=keys)
+            if scripted:  # w/o RL: the paper's straight lift from the pre-grasp itself, without the grasp closure
+                plain = env if cfg.lift.closure_steps == 0 else dataclasses.replace(
+                    factory, lift_cfg={**factory.lift_cfg, "closure_steps": 0})()
+                try:
+                    base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
+                                         seed=stage.eval_seed, seed_keys=keys)
+                finally:
+                    if plain is not env:
+                        plain.close()
                 out.scripted_wins += sum(base.successes_per_pose)
                 out.scripted_total += base.n_poses * base.trials
                 held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys)
@@ -265,11 +273,14 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         if setting == "Syn-Pl":
             ablation.append({"setting": "Ours", "succ": row["succ"], "n_poses": res.poses, "trials": stage.eval_trials})
             ablation.append({"setting": "w/o RL", "succ": res.rate(res.scripted_wins, res.scripted_total),
-                             "n_poses": res.poses, "trials": stage.eval_trials})
+                             "n_poses": res.poses, "trials": stage.eval_trials,
+                             "note": "the paper's: lift straight from the pre-grasp (no grasp closure), "
+                                     f"specialists.scripted_force_fraction={stage.scripted_force_fraction}"})
             ablation.append({"setting": SQUEEZE_ROW, "succ": res.rate(res.squeeze_wins, res.squeeze_total),
                              "n_poses": res.poses, "trials": stage.eval_trials,
-                             "note": "not in the paper: the scripted squeeze-and-lift (specialists.squeeze_*), "
-                                     f"PPO's starting mean when specialists.init_policy=squeeze_lift (here: {stage.init_policy})"})
+                             "note": "not in the paper: the scripted squeeze-and-lift (specialists.squeeze_*) after the env's "
+                                     f"grasp closure (lift.closure_steps={cfg.lift.closure_steps}), PPO's starting mean "
+                                     f"when specialists.init_policy=squeeze_lift (here: {stage.init_policy})"})
     for name, overrides in ABLATIONS.items():
         if not ablations:
             ablation.append({"setting": name, "succ": None, "n_poses": 0, "trials": stage.eval_trials,

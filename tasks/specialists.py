@@ -77,10 +77,12 @@ class SpecialistsStageConfig(Section):
         description="Actuated joints the scripted squeeze-and-lift closes: positive targets flex them on the Shadow "
         "Hand (the MCP and PIP flexion of the four fingers, the thumb's THJ3).")
     squeeze_action: float = Field(
-        0.9, gt=-1.0, lt=1.0,
+        0.0, gt=-1.0, lt=1.0,
         description="Squeeze-and-lift: joint action on squeeze_joints at every step (their targets close by this x "
-        "lift.joint_delta_rad per step until the joint limits).  On 60 of the bench singles, one trial each (a one-off probe): "
-        "0.9 lifts 10/60, 1.0 11/60, 0.3 3/60 (with squeeze_force_fraction 0.2), against 1/60 for the straight lift.")
+        "lift.joint_delta_rad per step until the joint limits).  0: the env's grasp closure (lift.closure_steps) has "
+        "already pressed the fingers in, and closing further sweeps the objects away: on 100 bench Syn-Pl pre-grasps "
+        "after the closure, 0 lifts 10 %, 0.3 1 %, 0.9 3 % (force fraction 0.2; README 'Grasp closure').  Without "
+        "the closure (closure_steps 0), 0.9 lifted 10/60 bench singles, 0.3 3/60.")
     squeeze_force_fraction: float = Field(
         0.2, gt=0.0, le=1.0,
         description="Squeeze-and-lift: upward base force as a fraction of lift.max_base_force_n (0.2: 4 N, the hand "

@@ -181,8 +181,10 @@ def test_the_untrained_actor_starts_at_the_given_mean_action(factory):
             assert float(zero(env.reset())["action"].abs().max()) < 0.03
         hand = env.world.hand
         assert initial_action(SpecialistsStageConfig(init_policy="zero"), hand.actuated_joint_names) is None
-        squeeze = initial_action(SpecialistsStageConfig(), hand.actuated_joint_names)
         names = hand.actuated_joint_names
+        lift = initial_action(SpecialistsStageConfig(), names)  # default: the closure squeezed, so lift only
+        assert float(lift[:18].abs().max()) == 0.0 and float(lift[20]) == pytest.approx(0.2)
+        squeeze = initial_action(SpecialistsStageConfig(squeeze_action=0.9), names)
         assert float(squeeze[names.index("FFJ2")]) == pytest.approx(0.9) and float(squeeze[names.index("THJ4")]) == 0.0
         with pytest.raises(MultigraspError, match="squeeze_joints: XXJ9 not among"):
             initial_action(SpecialistsStageConfig(squeeze_joints=["FFJ2", "XXJ9"]), names)

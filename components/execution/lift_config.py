@@ -25,7 +25,13 @@ class LiftEnvConfig(Section):
         "give overhead_ratio ~0.78 (benchmarks/sim.py, median of 9 invocations, 0.745-0.804; 4 substeps gave 0.50-0.55 "
         "with the env of the sixth session).  Named "
         "'substeps' and not 'frame_skip': an env attribute called frame_skip makes torchrl repeat steps.")
-    solver_iterations: int = Field(50, ge=1, description="PyBullet constraint solver iterations per step (default 50).")
+    solver_iterations: int = Field(
+        150, ge=1,
+        description="PyBullet constraint solver iterations per step.  150, not PyBullet's 50: with 50 the solver does "
+        "not converge on a squeezed grasp (10-20 contacts, joint motors pressing) and the held objects leak out of the "
+        "fingers as the hand rises.  Grasp closure then straight lift on 60 bench training pre-grasps with Q1 >= 0.15: "
+        "50 iterations 2 %, 100 20 %, 150 28 %, 300 28 % (joint_max_force_nm 2); the physics step costs ~1.7x the 50's "
+        "(README 'Grasp closure').")
     gravity_compensation: bool = Field(
         True,
         description="Apply the hand's total weight upwards at its centre of mass every physics step, so zero base "
@@ -45,7 +51,35 @@ class LiftEnvConfig(Section):
         "angles and clamped to the joint limits: zero action holds the pre-grasp.  J0 of FF/MF/RF/LF follows J1.")
     joint_position_gain: float = Field(0.3, gt=0.0, description="PyBullet POSITION_CONTROL position gain of every finger joint.")
     joint_velocity_gain: float = Field(1.0, ge=0.0, description="PyBullet POSITION_CONTROL velocity gain of every finger joint.")
-    joint_max_force_nm: float = Field(5.0, gt=0.0, description="Largest motor torque of a finger joint (N m).")
+    joint_max_force_nm: float = Field(
+        2.0, gt=0.0,
+        description="Largest motor torque of a finger joint (N m).  2 (was 5): with 5 a closed grasp presses 40 g objects "
+        "with 50-90 N and the solver squeezes them out; on 60 bench pre-grasps with Q1 >= 0.15 (closure, then straight "
+        "lift, 150 solver iterations) 5 N m lifted 18 %, 2 N m 28 %, 1 N m 17 %.")
+
+    # ------------------------------------------------------------------ grasp closure (components/execution/closure.py)
+    closure_steps: int = Field(
+        10, ge=0,
+        description="Grasp closure at every reset: environment steps over which the joint targets move from the "
+        "pre-grasp to targets that press the links near the objects closure_depth_m into them, with the palm held "
+        "(GenDexGrasp's squeeze toward the closest surface).  The episode then starts from the closed grasp.  0 = "
+        "start at the pre-grasp itself, the paper's protocol (README 'Grasp closure': 100 bench Syn-Pl poses, "
+        "straight lift after it 10 % against 0 % from the pre-grasp).")
+    closure_settle_steps: int = Field(5, ge=0, description="Closure: environment steps the closed targets are held, palm still, before the episode starts.")
+    closure_depth_m: float = Field(
+        0.02, gt=0.0,
+        description="Closure: how far (m) the joint targets move each near point into its object, to first order; "
+        "the position-controlled joints stop at the surface and press (0.01-0.03 gave the same lifts on 100 bench Syn-Pl poses).")
+    closure_radius_m: float = Field(
+        0.01, gt=0.0, description="Closure: hand links closer than this (m) to an object are pressed into it (0.005 and 0.01 measured alike).")
+    closure_damping: float = Field(
+        1e-3, gt=0.0, description="Closure: lambda (rad^2 per m^2 of point motion) of the damped least squares (J^T J + lambda I) dq = J^T b.")
+    closure_hold_stiffness_n_per_m: float = Field(
+        1000.0, gt=0.0, description="Closure: stiffness (N/m) of the PD force that holds the palm still (critically damped for the hand's mass; clipped to max_base_force_n).")
+    closure_hold_stiffness_nm_per_rad: float = Field(
+        20.0, gt=0.0, description="Closure: rotational stiffness (N m / rad) of the palm hold (clipped to max_base_torque_nm).")
+    closure_hold_damping_nms_per_rad: float = Field(
+        1.3, ge=0.0, description="Closure: rotational damping (N m s / rad) of the palm hold (~critical for the hand's ~0.02 kg m^2).")
 
     # ------------------------------------------------------------------ episode
     max_steps: int = Field(100, ge=1, description="Environment steps per episode (2.5 s at 40 Hz); the episode is truncated after them.")

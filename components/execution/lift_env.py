@@ -5,7 +5,9 @@
     rollout = env.rollout(150, policy)
 
 An episode starts from the pre-grasp of one :class:`GraspRecord` (hand and objects as the record puts
-them, at rest; drawn at random or in turn, ``record_order``), then each step applies a 24-D action in
+them, at rest; drawn at random or in turn, ``record_order``), closed on the objects by the grasp closure
+(:mod:`components.execution.closure`, ``closure_steps`` > 0; the goals, start heights and step count start
+after it), then each step applies a 24-D action in
 [-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps.  Output keys:
 
 * ``observation`` (D,) float32 -- :mod:`components.execution.observations` (998 entries for 2 objects);
@@ -133,6 +135,8 @@ class LiftEnv(EnvBase):
                 record = self.world.perturbed(record, np.random.default_rng(forced[1]), self.cfg.trial_position_noise_m,
                                               self.cfg.trial_joint_noise_rad)
         state = self.world.reset(record)
+        if self.world.close_grasp():  # grasp closure (LiftEnvConfig.closure_steps); the episode starts closed
+            state = self.world.read()
         ep = self.episode
         ep.goal = Goal.from_state(state)
         self._observations.start(ep.goal)

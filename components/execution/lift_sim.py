@@ -27,6 +27,7 @@ import pybullet as pb
 from scipy.spatial.transform import Rotation
 
 from components.execution.cameras import CameraConfig, add_table
+from components.execution.closure import closest_points, closure_targets
 from components.execution.lift_config import LiftEnvConfig
 from components.hand import HandModel
 from components.objects import ObjectLibrary, Scene
@@ -250,6 +251,40 @@ class LiftWorld:
         self._send_targets()
         self.record = record
         return self.read()
+
+    def close_grasp(self) -> int:
+        """Grasp closure before the lift (:mod:`components.execution.closure`): joint targets that press the links
+        near the objects ``closure_depth_m`` into them, reached over ``closure_steps`` environment steps and held for
+        ``closure_settle_steps`` more, while a PD wrench holds the palm at its current pose.  -> environment steps
+        taken (0: closure off, or no link within ``closure_radius_m`` of an object: nothing to close on)."""
+        cfg = self.cfg
+        if cfg.closure_steps == 0:
+            return 0
+        rows, points, directions = closest_points(self, cfg.closure_radius_m)
+        if not rows:
+            return 0
+        p0, R0 = self.palm_pose()
+        start = self.targets
+        goal = closure_targets(self.hand, p0, R0, start, rows, points, directions, cfg.closure_depth_m,
+                               cfg.closure_damping)
+        c = self.client
+        kp, kr = cfg.closure_hold_stiffness_n_per_m, cfg.closure_hold_stiffness_nm_per_rad
+        kd = 2.0 * np.sqrt(kp * self.mass)  # critically damped for the whole hand's mass
+        kw = cfg.closure_hold_damping_nms_per_rad
+        total = cfg.closure_steps + cfg.closure_settle_steps
+        action = np.zeros(N_JOINT_ACTIONS + N_WRENCH)
+        for k in range(total):
+            s = min(1.0, (k + 1) / cfg.closure_steps)
+            self.set_joint_targets(self.coupled((1.0 - s) * start + s * goal))
+            p, R = self.palm_pose()
+            v, w = (np.asarray(x) for x in pb.getBaseVelocity(self.body, physicsClientId=c))
+            force = -kp * (p - p0) - kd * v
+            torque = -kr * Rotation.from_matrix(R @ R0.T).as_rotvec() - kw * w
+            action[N_JOINT_ACTIONS:N_JOINT_ACTIONS + 3] = np.clip(force / cfg.max_base_force_n, -1.0, 1.0)
+            action[N_JOINT_ACTIONS + 3:] = np.clip(torque / cfg.max_base_torque_nm, -1.0, 1.0)
+            self.step(action)  # zero joint deltas: the targets set above stay
+        self.last_action = [0.0] * (N_JOINT_ACTIONS + N_WRENCH)
+        return total
 
     # ------------------------------------------------------------------ stepping
     def coupled(self, q22: np.ndarray) -> np.ndarray:
