@@ -4,8 +4,10 @@
 
 The paper's "w/o RL" baseline lifts straight up from the pre-grasp (its success: 1.37 %).  This tool runs that
 baseline (:class:`components.execution.evaluation.ScriptedLift`, the upward base force
-``specialists.scripted_force_fraction``), or with ``--controller squeeze`` the squeeze-and-lift that PPO starts from
-(``specialists.squeeze_*``: close the flexion joints while pushing up more gently), in the lift env (``lift`` config) with the evaluation protocol of
+``specialists.scripted_force_fraction``, from the pre-grasp itself: the env's grasp closure off), or with
+``--controller squeeze`` the squeeze-and-lift that PPO starts from (the env's grasp closure, ``lift.closure_*``,
+then ``specialists.squeeze_*``: close the flexion joints by ``squeeze_action`` -- 0 by default, the closure has
+squeezed -- while pushing up more gently), in the lift env (``lift`` config) with the evaluation protocol of
 ``multigrasp evaluate execution`` (:func:`components.execution.evaluation.evaluate_lift`: ``--trials`` seeded
 perturbations of each pre-grasp, success = every object above ``lift.eval_success_height_m`` at the end), on the
 first ``--max-poses`` accepted grasps (optionally only those with ``--min-q1`` <= stored Q1 <= ``--max-q1``) of every
@@ -55,12 +57,14 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     stage = cfg.specialists
     policy = (ScriptedLift(stage.scripted_force_fraction) if controller == "straight"
               else squeeze_lift(stage, hand.actuated_joint_names))
+    # straight: the paper's w/o RL, from the pre-grasp itself (no grasp closure); squeeze: the env as configured
+    lift = cfg.lift.model_copy(update={"closure_steps": 0}) if controller == "straight" else cfg.lift
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         urdf = hand.export_urdf(Path(tmp) / "hand")
         for combination, group in frame.groupby("combination", sort=True):
             records = records_from_table(group.iloc[:max_poses])
-            env = LiftEnv(hand, library, urdf, records, cfg.lift, encoder, record_order="cycle")
+            env = LiftEnv(hand, library, urdf, records, lift, encoder, record_order="cycle")
             try:
                 result = evaluate_lift(env, policy, trials=trials, seed=cfg.specialists.eval_seed)
             finally:
@@ -77,6 +81,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                 "squeeze_joints": list(stage.squeeze_joints)})
     bounds = {k: float(v) for k, v in zip(("min_q1", "max_q1"), q1_range) if np.isfinite(v)}
     return {"grasps": str(grasps), "split": split, "controller": controller, **setting, **bounds,
+            "closure_steps": lift.closure_steps,
             **({"q1_mean": round(float(frame.groupby("combination").head(max_poses)["q1"].mean()), 4)}
                if "q1" in frame else {}),
             "succ_all": round(wins / total, 4) if total else 0.0, "rows": rows}

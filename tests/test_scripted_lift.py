@@ -41,12 +41,14 @@ def test_a_hand_that_does_not_touch_the_object_lifts_nothing(hand, tmp_path, cap
     assert abs(row["median_final_lift_m"]) < 0.005 and abs(row["p90_final_lift_m"]) < 0.005
     assert "sphere" in capsys.readouterr().out
     assert result["controller"] == "straight" and result["force_fraction"] == 0.5
+    assert result["closure_steps"] == 0  # the paper's w/o RL: from the pre-grasp itself, no grasp closure
     # the squeeze-and-lift closes a hand that holds nothing: still no success
     assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
                  "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "1", "--max-poses", "1",
                  "--controller", "squeeze", "--json", str(out)]) == 0
     squeezed = json.loads(out.read_text())
     assert squeezed["controller"] == "squeeze" and squeezed["squeeze_action"] == 0.0 and squeezed["succ_all"] == 0.0
+    assert squeezed["closure_steps"] == 10  # the env's grasp closure first
 
 
 def test_q1_bounds_select_grasps_and_an_empty_range_is_one_line(hand, tmp_path, capsys):

@@ -46,9 +46,13 @@ class LiftEnvConfig(Section):
         20.0, gt=0.0, description="Base force at action +-1 on an axis (N, world frame); the hand with its forearm weighs 4.9 kg (48 N).")
     max_base_torque_nm: float = Field(2.0, gt=0.0, description="Base torque at action +-1 on an axis (N m, world frame).")
     joint_delta_rad: float = Field(
-        0.075, gt=0.0,
+        0.02, gt=0.0,
         description="Joint targets move by action * this per environment step (rad), starting at the pre-grasp "
-        "angles and clamped to the joint limits: zero action holds the pre-grasp.  J0 of FF/MF/RF/LF follows J1.")
+        "angles (after the grasp closure: its targets) and clamped to the joint limits: zero action holds them.  J0 "
+        "of FF/MF/RF/LF follows J1.  0.02 (0.8 rad/s at 40 Hz; was 0.075): the closure has closed the fingers, and "
+        "PPO's exploration noise on the joint actions opens them again.  Closure then a lift at 4 N with Gaussian "
+        "noise (std before the tanh) on 60 bench training pre-grasps: 0.075 -> 0/60 at std 0.5, 1/60 at 0.2; "
+        "0.02 -> 1/60 at 0.5, 2/60 at 0.2; no noise 4/60 (README 'Grasp closure').")
     joint_position_gain: float = Field(0.3, gt=0.0, description="PyBullet POSITION_CONTROL position gain of every finger joint.")
     joint_velocity_gain: float = Field(1.0, ge=0.0, description="PyBullet POSITION_CONTROL velocity gain of every finger joint.")
     joint_max_force_nm: float = Field(

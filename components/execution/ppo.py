@@ -64,7 +64,11 @@ class PPOConfig(Section):
     entropy_coeff: float = Field(0.0, ge=0.0, description="Entropy bonus weight.")
     critic_coeff: float = Field(0.5, ge=0.0, description="Value loss weight.")
     hidden: tuple[PositiveInt, ...] = Field((256, 256), description="Hidden widths of the actor and critic MLPs.")
-    init_scale: float = Field(0.5, gt=0.0, description="Initial action standard deviation (before the tanh), so early lifts stay gentle.")
+    init_scale: float = Field(
+        0.2, gt=0.0,
+        description="Initial action standard deviation (before the tanh).  0.2 (was 0.5): around a closed grasp, "
+        "noise of 0.5 on every action drops what the mean action lifts (README 'Grasp closure': 1/60 against 4/60 "
+        "without noise; 0.2: 2/60).")
     normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
     checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
     seed: int = Field(0, ge=0, description="Seed of the networks and the collectors.")
