@@ -198,8 +198,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
             if gifs:
                 gif_paths += _outcome_gifs(env, actor, result, stage, scratch / name, rollout_gif, trial_seed)
             if scripted:  # w/o RL: the paper's straight lift from the pre-grasp itself, without the grasp closure
-                plain = env if cfg.lift.closure_steps == 0 else dataclasses.replace(
-                    factory, lift_cfg={**factory.lift_cfg, "closure_steps": 0})()
+                paper = without_closure(factory)
+                plain = env if paper is factory else paper()
                 try:
                     base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
                                          seed=stage.eval_seed, seed_keys=keys)
@@ -216,6 +216,16 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
             env.close()
     out.gifs = tuple(gif_paths)
     return out
+
+
+def without_closure(factory):
+    """The env factory of the paper's ``w/o RL``: the same env, starting at the pre-grasp itself (``closure_steps``
+    0; the factory itself when its env already does)."""
+    from components.execution import LiftEnvConfig
+
+    if LiftEnvConfig(**factory.lift_cfg).closure_steps == 0:  # a missing key is the config's default
+        return factory
+    return dataclasses.replace(factory, lift_cfg={**factory.lift_cfg, "closure_steps": 0})
 
 
 def pose_key(record, index: int) -> int:

@@ -3,6 +3,7 @@ there are accepted grasps), the encoder pre-training, one PPO specialist per bin
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -142,6 +143,19 @@ def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(r
     assert all(r["after_reach"] for r in rows)
     assert sum(r["reached_poses"] for r in rows) == sum(r["n_poses"] for r in rows) == len(reached) >= 1
     assert all(r.meta["reached"] and "object_displacement_m" in r.meta for r in reached)
+
+
+
+def test_the_wo_rl_row_lifts_from_the_pre_grasp_without_the_grasp_closure():
+    from components.execution.factory import LiftEnvFactory
+    from flows.evaluate_execution import without_closure
+
+    factory = LiftEnvFactory(hand_cfg={}, objects_cfg={}, objects_cache="c", urdf="u", records="r",
+                             lift_cfg={"closure_steps": 10, "max_steps": 25}, encoder="e")
+    plain = without_closure(factory)
+    assert plain.lift_cfg == {"closure_steps": 0, "max_steps": 25} and factory.lift_cfg["closure_steps"] == 10
+    assert without_closure(plain) is plain  # already the paper's start: the same env serves both rows
+    assert without_closure(dataclasses.replace(factory, lift_cfg={})).lift_cfg == {"closure_steps": 0}  # default: on
 
 
 def test_each_pose_is_reached_once_per_reach_setting(monkeypatch):
