@@ -291,3 +291,38 @@ def test_a_goal_built_from_arrays_gives_the_same_reward(env):
     for name in ("r_rot", "r_joint", "r_object", "reward"):
         assert a[name] == pytest.approx(b[name], abs=1e-9), name
     assert td["reward"].shape == (1,)
+
+
+def test_object_displacement_is_clipped_and_a_fall_costs_the_rest_of_the_episode(env, record):
+    """r_obj counts each object's displacement up to object_distance_clip_m; the step on which an object falls gets
+    the remaining steps times worst_step_reward, which bounds every step's reward before a fall from below."""
+    import pybullet as pb
+
+    from components.execution.observations import worst_step_reward
+
+    cfg = env.cfg
+    env.reset()
+    world = env.world
+    sphere = world.objects[1]
+    pos, orn = pb.getBasePositionAndOrientation(sphere, physicsClientId=world.client)
+    pb.resetBasePositionAndOrientation(sphere, (pos[0] + 0.5, pos[1], pos[2]), orn, physicsClientId=world.client)
+    state = world.read()
+    terms = reward_terms(cfg, state, env.episode.goal, env.episode.start_heights)
+    assert terms["r_object"] == pytest.approx(-cfg.object_distance_clip_m, abs=1e-3)  # 0.5 m away, counted 0.1
+    ranges = (world.upper - world.lower).tolist()
+    worst = worst_step_reward(cfg, 2, ranges)
+    assert worst == pytest.approx(-(cfg.w_lift * 0.05 + cfg.w_rotation * np.pi + cfg.w_joint * np.mean(ranges)
+                                    + cfg.w_object * 2 * cfg.object_distance_clip_m))
+    assert terms["reward"] >= worst
+    # the sphere below the table's edge: the next step terminates and pays for the steps it skips
+    pb.resetBasePositionAndOrientation(sphere, (pos[0], pos[1], -0.2), orn, physicsClientId=world.client)
+    td = env.step(env.reset().set("action", torch.zeros(24)))["next"]
+    assert not bool(td["terminated"])  # reset put the sphere back
+    pb.resetBasePositionAndOrientation(sphere, (pos[0], pos[1], -0.2), orn, physicsClientId=world.client)
+    td = env.step(td.set("action", torch.zeros(24)))["next"]
+    assert bool(td["terminated"]) and env.episode.t == 2
+    after = reward_terms(cfg, world.read(), env.episode.goal, env.episode.start_heights)
+    assert float(td["reward"]) == pytest.approx(after["reward"] + (cfg.max_steps - 2) * worst, rel=1e-5)
+    # without goal observations only the lift term can go below zero
+    no_goal = cfg.model_copy(update={"goal_observations": False})
+    assert worst_step_reward(no_goal, 2, ranges) == pytest.approx(-cfg.w_lift * 0.05)

@@ -88,7 +88,11 @@ class LiftEnvConfig(Section):
     # ------------------------------------------------------------------ episode
     max_steps: int = Field(100, ge=1, description="Environment steps per episode (2.5 s at 40 Hz); the episode is truncated after them.")
     fall_height_m: float = Field(
-        -0.05, description="An object whose centre falls below this height (m, table top = 0) ends the episode (terminated).")
+        -0.05,
+        description="An object whose centre falls below this height (m, table top = 0) ends the episode (terminated). "
+        "The terminating step also gets the remaining steps times the worst reward a step can have "
+        "(observations.worst_step_reward), so that knocking an object off the table never pays more than holding "
+        "on: with per-step penalties and a free termination, PPO learned to end episodes that way (README 'Grasp closure').")
 
     # ------------------------------------------------------------------ reward (paper Eq. rl-rewards)
     w_lift: float = Field(10.0, ge=0.0, description="omega_lift: weight of r_lift = min_j (z_j - z_j(0)) (m), the lift of the lowest object.")
@@ -99,6 +103,12 @@ class LiftEnvConfig(Section):
         1.0, ge=0.0,
         description="omega_obj: weight of r_obj = -sum_j |p_j^palm - p_j^palm,goal| (m), the objects' displacement "
         "in the palm frame from where the pre-grasp held them.")
+    object_distance_clip_m: float = Field(
+        0.1, gt=0.0,
+        description="r_obj counts each object's displacement in the palm frame up to this (m).  Unclipped, a hand "
+        "that rises without its objects costs ~1 per step (its height), ten times what a lift earns before it "
+        "succeeds, and PPO learned not to lift (README 'Grasp closure': the closure then a 4 N lift, 30 bench "
+        "training pairs: r_obj -1.02 per step against r_lift +0.24).")
     success_height_m: float = Field(0.15, gt=0.0, description="Lift (m) above which every object must be for the success bonus (paper: 15 cm).")
     eval_success_height_m: float = Field(0.10, gt=0.0, description="Lift (m) every object must exceed at the end of an evaluation rollout (paper: 10 cm).")
 

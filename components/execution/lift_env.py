@@ -11,7 +11,9 @@ after it), then each step applies a 24-D action in
 [-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps.  Output keys:
 
 * ``observation`` (D,) float32 -- :mod:`components.execution.observations` (998 entries for 2 objects);
-* ``reward`` (1,) -- :func:`components.execution.observations.reward_terms`;
+* ``reward`` (1,) -- :func:`components.execution.observations.reward_terms`; on the step an object falls, plus
+  the remaining steps times :func:`~components.execution.observations.worst_step_reward` (ending the episode by
+  knocking an object off the table is never better than holding on);
 * ``lift`` (1,) -- min_j (z_j - z_j(0)) (m);  ``success`` (1,) bool -- lift > ``eval_success_height_m``;
 * ``done`` / ``terminated`` (an object fell below ``fall_height_m``) / ``truncated`` (``max_steps`` reached).
 
@@ -36,7 +38,7 @@ from components.errors import MultigraspError
 from components.execution.clouds import CloudFeaturizer, Encoder
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import N_JOINT_ACTIONS, N_WRENCH, GraspRecord, LiftWorld, WorldState
-from components.execution.observations import Goal, ObservationBuilder, observation_dim, reward_terms
+from components.execution.observations import Goal, ObservationBuilder, observation_dim, reward_terms, worst_step_reward
 from components.hand import HandModel
 from components.objects import ObjectLibrary
 
@@ -80,6 +82,8 @@ class LiftEnv(EnvBase):
         self._next = 0
         dim = observation_dim(cfg, self.n_objects)
         self._observations = ObservationBuilder(cfg, self.n_objects)
+        #: reward of each step left when an object falls (module docstring)
+        self._worst_step = worst_step_reward(cfg, self.n_objects, (self.world.upper - self.world.lower).tolist())
         self.observation_spec = Composite(
             observation=Unbounded(shape=(dim,), dtype=torch.float32),
             lift=Unbounded(shape=(1,), dtype=torch.float32),
@@ -163,7 +167,10 @@ class LiftEnv(EnvBase):
         terms = reward_terms(self.cfg, state, ep.goal, ep.start_heights)
         terminated = any(pos[2] < self.cfg.fall_height_m for pos in state.obj_pos_tuples)
         truncated = ep.t >= self.cfg.max_steps
-        out = self._output(state, terms["lift"], terms["reward"], terminated, truncated)
+        reward = terms["reward"]
+        if terminated:  # as if the episode went on at the worst reward: dropping objects never pays
+            reward += (self.cfg.max_steps - ep.t) * self._worst_step
+        out = self._output(state, terms["lift"], reward, terminated, truncated)
         if self.run_type_checks:
             return TensorDict(out, batch_size=self.batch_size)
         # the same entries as every reset's checked TensorDict (fixed keys, shapes and dtypes): built without the

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -218,12 +219,24 @@ def lift_height(state: WorldState, start_heights: np.ndarray) -> float:
     return min(pos[2] - float(z0) for pos, z0 in zip(state.obj_pos_tuples, start_heights))  # Python: no numpy call
 
 
+def worst_step_reward(cfg: LiftEnvConfig, n_objects: int, joint_ranges: Sequence[float]) -> float:
+    """A lower bound of one step's reward before an object falls: the lift at ``fall_height_m`` below the start,
+    no bonus and, with goal observations, the palm turned by pi, every joint at the far end of its range
+    (``joint_ranges``, rad) and every object displaced by ``object_distance_clip_m``.  The env adds the remaining
+    steps times this to the step on which an object falls, as if the episode went on at the worst reward."""
+    worst = -cfg.w_lift * abs(cfg.fall_height_m)
+    if cfg.goal_observations:
+        worst -= (cfg.w_rotation * math.pi + cfg.w_joint * sum(joint_ranges) / len(joint_ranges)
+                  + cfg.w_object * n_objects * cfg.object_distance_clip_m)
+    return worst
+
+
 def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_heights: np.ndarray) -> dict[str, float]:
     """The paper's reward (Eq. rl-rewards) and its terms:
 
         r = w_lift min_j h_j + w_succ 1[min_j h_j > success_height] + w_r r_r + w_q r_q + w_obj r_obj,
         h_j = z_j - z_j(0),  r_r = -angle(R_goal^T R),  r_q = -mean |q - q_goal|,
-        r_obj = -sum_j |p_j^palm - p_j^palm,goal|.
+        r_obj = -sum_j min(|p_j^palm - p_j^palm,goal|, object_distance_clip_m).
 
     Without goal observations ('w/o Goal') the three goal terms are off.  -> dict with 'reward' and terms.
     The rotations are compared as quaternions and the distances summed in plain Python: a handful of numbers, for
@@ -236,7 +249,8 @@ def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_height
         pos_palm, _ = state.objects_in_palm_pose
         terms["r_rot"] = -quaternion_angle(goal.palm_quat, state.palm_quat)
         terms["r_joint"] = -sum(abs(x - y) for x, y in zip(state.q_tuple, goal.q_tuple)) / len(goal.q_tuple)
-        terms["r_object"] = -sum(math.dist(p, g) for p, g in zip(pos_palm, goal.obj_pos_palm_tuples))
+        clip = cfg.object_distance_clip_m
+        terms["r_object"] = -sum(min(math.dist(p, g), clip) for p, g in zip(pos_palm, goal.obj_pos_palm_tuples))
         reward += cfg.w_rotation * terms["r_rot"] + cfg.w_joint * terms["r_joint"] + cfg.w_object * terms["r_object"]
     terms["reward"] = reward
     terms["lift"] = lift
