@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from prefect import flow
@@ -21,6 +22,14 @@ UPSTREAM: tuple[str, ...] = ("synthesize", "pointnet")
 DESCRIPTION = "bin the training pre-grasps and train one TorchRL PPO lift specialist per bin in PyBullet"
 
 
+def bin_unit(label: str) -> str:
+    """Unit name of a bin, from its label alone (``cube+frustum/0`` -> ``bin-cube+frustum-0``), so a bin keeps its
+    cache key whatever other bins are trained beside it (``max_bins`` changed, records added to another bin).
+    Until the twenty-first session the name was the bin's rank among the trained bins, so raising ``max_bins``
+    retrained bins that were already trained."""
+    return "bin-" + re.sub(r"[^A-Za-z0-9+_.-]", "-", label)
+
+
 def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
              tracking_uri: str | None = None) -> list[tuple[UnitSpec, str, list[dict]]]:
     """(spec, bin label, records as dicts) of every trained bin, largest bins first (``max_bins``)."""
@@ -34,9 +43,9 @@ def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | N
     base = section_digest(cfg, "specialists.ppo", "lift", "hand", "objects")
     code = code_version(*SPECIALIST_CODE_DIRS)
     plan = []
-    for number, (label, idx) in enumerate(sorted(bins)):
+    for label, idx in sorted(bins):
         chunk = [record_to_dict(records[i]) for i in idx]
-        spec = make_spec(stage=STAGE, unit=f"bin-{number:03d}", section_digest=base,
+        spec = make_spec(stage=STAGE, unit=bin_unit(label), section_digest=base,
                          upstream={"records": digest(chunk)[:20], "pointnet": upstream["pointnet"].key[:20]},
                          code=code, workdir=cfg.run.workdir, run_id=run_id, tracking_uri=tracking_uri)
         plan.append((spec, label, chunk))

@@ -75,6 +75,23 @@ def test_second_run_serves_the_execution_stages_from_cache(runs):
     assert after == first  # nothing executed on the second run
 
 
+def test_fewer_bins_reuse_the_trained_specialists(runs):
+    """A bin's unit is named by its label, not its rank: changing max_bins retrains no bin already trained."""
+    from flows.specialists import bin_unit
+
+    assert bin_unit("cube+frustum/0") == "bin-cube+frustum-0"
+    workdir, _, after = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "specialists"]
+    for item in [*ACCEPT_ALL, *TINY, "specialists.max_bins=1"]:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    new = executions(workdir)[len(after):]
+    assert not [e for e in new if e.startswith("specialists/bin-")], new
+    index = json.loads(_final(workdir, "specialists").path("index").read_text())
+    assert len(index) == 1
+
+
 def test_mlflow_has_the_learning_curves(runs):
     import mlflow
 
