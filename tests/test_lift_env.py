@@ -310,10 +310,13 @@ def test_object_displacement_is_clipped_and_a_fall_costs_the_rest_of_the_episode
     terms = reward_terms(cfg, state, env.episode.goal, env.episode.start_heights)
     assert terms["r_object"] == pytest.approx(-cfg.object_distance_clip_m, abs=1e-3)  # 0.5 m away, counted 0.1
     ranges = (world.upper - world.lower).tolist()
-    worst = worst_step_reward(cfg, 2, ranges)
-    assert worst == pytest.approx(-(cfg.w_lift * 0.05 + cfg.w_rotation * np.pi + cfg.w_joint * np.mean(ranges)
+    heights = env.episode.start_heights.tolist()
+    worst = worst_step_reward(cfg, 2, ranges, heights)
+    sink = max(heights) - cfg.fall_height_m  # the highest-starting object just above the fall height
+    assert worst == pytest.approx(-(cfg.w_lift * sink + cfg.w_rotation * np.pi + cfg.w_joint * np.mean(ranges)
                                     + cfg.w_object * 2 * cfg.object_distance_clip_m))
     assert terms["reward"] >= worst
+    assert env.episode.worst_step == pytest.approx(worst)
     # the sphere below the table's edge: the next step terminates and pays for the steps it skips
     pb.resetBasePositionAndOrientation(sphere, (pos[0], pos[1], -0.2), orn, physicsClientId=world.client)
     td = env.step(env.reset().set("action", torch.zeros(24)))["next"]
@@ -322,7 +325,9 @@ def test_object_displacement_is_clipped_and_a_fall_costs_the_rest_of_the_episode
     td = env.step(td.set("action", torch.zeros(24)))["next"]
     assert bool(td["terminated"]) and env.episode.t == 2
     after = reward_terms(cfg, world.read(), env.episode.goal, env.episode.start_heights)
+    worst = env.episode.worst_step  # this episode's start heights
+    assert worst == pytest.approx(worst_step_reward(cfg, 2, ranges, env.episode.start_heights.tolist()))
     assert float(td["reward"]) == pytest.approx(after["reward"] + (cfg.max_steps - 2) * worst, rel=1e-5)
     # without goal observations only the lift term can go below zero
     no_goal = cfg.model_copy(update={"goal_observations": False})
-    assert worst_step_reward(no_goal, 2, ranges) == pytest.approx(-cfg.w_lift * 0.05)
+    assert worst_step_reward(no_goal, 2, ranges, heights) == pytest.approx(-cfg.w_lift * sink)

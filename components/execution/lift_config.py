@@ -30,7 +30,7 @@ class LiftEnvConfig(Section):
         description="PyBullet constraint solver iterations per step.  150, not PyBullet's 50: with 50 the solver does "
         "not converge on a squeezed grasp (10-20 contacts, joint motors pressing) and the held objects leak out of the "
         "fingers as the hand rises.  Grasp closure then straight lift on 60 bench training pre-grasps with Q1 >= 0.15: "
-        "50 iterations 2 %, 100 20 %, 150 28 %, 300 28 % (joint_max_force_nm 2); the physics step costs ~1.7x the 50's "
+        "50 iterations 7-8 %, 100 20 %, 150 28 %, 300 28 % (joint_max_force_nm 2); the physics step costs ~1.7x the 50's "
         "(README 'Grasp closure').")
     gravity_compensation: bool = Field(
         True,

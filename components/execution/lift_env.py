@@ -53,6 +53,7 @@ class Episode:
 
     goal: Optional[Goal] = None
     start_heights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n_obj,) object heights at reset (m)
+    worst_step: float = 0.0  # reward of each step left when an object falls (observations.worst_step_reward)
     last_action: list = field(default_factory=lambda: [0.0] * N_ACTIONS)  # (24,) as applied (clipped)
     features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.float32))  # (1 + n_obj, F)
     t: int = 0  # steps since reset
@@ -81,9 +82,8 @@ class LiftEnv(EnvBase):
         self._rng = np.random.default_rng(seed)
         self._next = 0
         dim = observation_dim(cfg, self.n_objects)
+        self._joint_ranges = (self.world.upper - self.world.lower).tolist()  # rad, for worst_step_reward
         self._observations = ObservationBuilder(cfg, self.n_objects)
-        #: reward of each step left when an object falls (module docstring)
-        self._worst_step = worst_step_reward(cfg, self.n_objects, (self.world.upper - self.world.lower).tolist())
         self.observation_spec = Composite(
             observation=Unbounded(shape=(dim,), dtype=torch.float32),
             lift=Unbounded(shape=(1,), dtype=torch.float32),
@@ -145,6 +145,7 @@ class LiftEnv(EnvBase):
         ep.goal = Goal.from_state(state)
         self._observations.start(ep.goal)
         ep.start_heights = state.obj_pos[:, 2].copy()
+        ep.worst_step = worst_step_reward(self.cfg, self.n_objects, self._joint_ranges, ep.start_heights.tolist())
         ep.last_action = [0.0] * N_ACTIONS
         ep.t = 0
         self._update_features(state)
@@ -169,7 +170,7 @@ class LiftEnv(EnvBase):
         truncated = ep.t >= self.cfg.max_steps
         reward = terms["reward"]
         if terminated:  # as if the episode went on at the worst reward: dropping objects never pays
-            reward += (self.cfg.max_steps - ep.t) * self._worst_step
+            reward += (self.cfg.max_steps - ep.t) * ep.worst_step
         out = self._output(state, terms["lift"], reward, terminated, truncated)
         if self.run_type_checks:
             return TensorDict(out, batch_size=self.batch_size)

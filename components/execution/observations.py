@@ -219,12 +219,14 @@ def lift_height(state: WorldState, start_heights: np.ndarray) -> float:
     return min(pos[2] - float(z0) for pos, z0 in zip(state.obj_pos_tuples, start_heights))  # Python: no numpy call
 
 
-def worst_step_reward(cfg: LiftEnvConfig, n_objects: int, joint_ranges: Sequence[float]) -> float:
-    """A lower bound of one step's reward before an object falls: the lift at ``fall_height_m`` below the start,
-    no bonus and, with goal observations, the palm turned by pi, every joint at the far end of its range
-    (``joint_ranges``, rad) and every object displaced by ``object_distance_clip_m``.  The env adds the remaining
-    steps times this to the step on which an object falls, as if the episode went on at the worst reward."""
-    worst = -cfg.w_lift * abs(cfg.fall_height_m)
+def worst_step_reward(cfg: LiftEnvConfig, n_objects: int, joint_ranges: Sequence[float],
+                      start_heights: Sequence[float]) -> float:
+    """A lower bound of one step's reward before an object falls: the lift of an object that started highest
+    (``start_heights``, m) sunk to ``fall_height_m``, no bonus and, with goal observations, the palm turned by pi,
+    every joint at the far end of its range (``joint_ranges``, rad) and every object displaced by
+    ``object_distance_clip_m``.  The env adds the remaining steps times this to the step on which an object falls,
+    as if the episode went on at the worst reward."""
+    worst = -cfg.w_lift * max(0.0, max(start_heights, default=0.0) - cfg.fall_height_m)
     if cfg.goal_observations:
         worst -= (cfg.w_rotation * math.pi + cfg.w_joint * sum(joint_ranges) / len(joint_ranges)
                   + cfg.w_object * n_objects * cfg.object_distance_clip_m)
