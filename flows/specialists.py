@@ -94,10 +94,14 @@ def log_stage(tracker: Tracker, result: StageResult) -> None:
     index = json.loads(result.manifest.path("index").read_text())
     for label, entry in index.items():
         folder = Path(entry["folder"])
+        name = label.replace("+", "-")  # MLflow metric names allow no '+'
         for row in json.loads((folder / "history.json").read_text()):
-            name = label.replace("+", "-")  # MLflow metric names allow no '+'
-            values = {f"{name}.{k}": float(v) for k, v in row.items() if k not in ("iteration",)}
+            values = {f"{name}.{k}": float(v) for k, v in row.items() if k not in ("iteration", "val_success", "val_lift")}
             tracker.log_metrics(result.run_id, values, step=int(row["iteration"]))
+        validations = folder / "validations.json"
+        for row in json.loads(validations.read_text())["rows"] if validations.is_file() else []:
+            tracker.log_metrics(result.run_id, {f"{name}.validation_success": float(row["success"]),
+                                                f"{name}.validation_lift": float(row["lift"])}, step=int(row["iteration"]))
         tracker.log_artifact(result.run_id, folder / "learning_curve.png", f"specialists/{label.replace('/', '_').replace('+', '-')}")
 
 

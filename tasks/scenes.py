@@ -27,7 +27,7 @@ from tasks.preflight import cache_dir
 from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
 
 SCENES_CODE_DIRS = ("components/objects", "assets/objects", "tasks/scenes.py")
-RENDER_CODE_DIRS = ("components/hand", "assets/hand", "components/execution")
+RENDER_CODE_DIRS = ("components/hand", "assets/hand", "components/execution/cameras.py")  # what the renders run
 SPLITS = ("train", "Pl", "Com", "Geo", "many")
 
 

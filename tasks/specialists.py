@@ -8,9 +8,11 @@ end to end; never for numbers), with at most ``max_objects`` objects, split into
 :mod:`components.execution.clustering`.
 
 Units:
-- ``bin-NNN`` -- the bin's records (``records.json``), PPO training (:func:`components.execution.ppo.train_ppo`)
+- ``bin-<label>`` -- the bin's records (``records.json``), PPO training (:func:`components.execution.ppo.train_ppo`)
   with its checkpoint ``policy.pt`` kept in the unit folder, so a killed run resumes from the last
-  checkpoint; ``history.json`` and ``learning_curve.png``.
+  checkpoint; ``history.json``, ``validations.json`` (the deterministic policy's success on the bin's
+  validation pre-grasps before training and every ``ppo.validate_every`` iterations; the best validated actor
+  is the one evaluated, :class:`BinValidation`) and ``learning_curve.png``.
 - ``merge`` -- ``index.json``: bin label -> policy, records, number of records and final metrics.
 """
 
@@ -59,6 +61,13 @@ class SpecialistsStageConfig(Section):
     max_objects: int = Field(2, ge=1, description="Pre-grasps of scenes with more objects are left out (the paper's specialists: 1-2 objects).")
     min_records_per_bin: int = Field(1, ge=1, description="Bins with fewer pre-grasps get no specialist.")
     max_bins: int = Field(0, ge=0, description="Train at most this many bins, the largest first (0 = every bin).")
+    validation_poses: int = Field(
+        30, ge=1,
+        description="Best-policy selection (ppo.validate_every): pre-grasps of the bin's own training records, evenly "
+        "spread, that the deterministic policy lifts at every validation; the best validated actor is the specialist.  "
+        "The evaluation's Syn-Pl / Syn-Com / Syn-Geo poses are other scenes, never used to select.")
+    validation_trials: int = Field(2, ge=1, description="Best-policy selection: seeded trials per validation pre-grasp.")
+    validation_seed: int = Field(1, ge=0, description="Best-policy selection: seed of the validation trials' perturbations.")
     eval_poses: int = Field(100, ge=1, description="multigrasp evaluate execution: pre-grasps per setting (the paper: 512).")
     eval_trials: int = Field(5, ge=1, description="Trials per pre-grasp, each from a seeded perturbation (the paper: 5).")
     eval_seed: int = Field(0, ge=0, description="Seed of the evaluation's trial perturbations.")
@@ -151,7 +160,32 @@ def initial_action(stage: SpecialistsStageConfig, actuated_joint_names: list[str
 # --------------------------------------------------------------------------- one bin
 
 
-def plot_learning_curve(path: Path, history: list[dict], title: str) -> Path:
+class BinValidation:
+    """The specialists' best-policy selection (``ppo.validate_every``): the deterministic actor lifts
+    ``validation_poses`` of the bin's training records (evenly spread), ``validation_trials`` seeded trials each, in
+    one env built on first use; returns the success rate and the mean final lift."""
+
+    def __init__(self, factory, n_records: int, stage: SpecialistsStageConfig):
+        self.factory, self.stage = factory, stage
+        self.poses = spread_records(list(range(n_records)), stage.validation_poses)
+        self.env = None
+
+    def __call__(self, actor) -> dict:
+        from components.execution.evaluation import evaluate_lift
+
+        if self.env is None:
+            self.env = self.factory()
+        result = evaluate_lift(self.env, actor, trials=self.stage.validation_trials, seed=self.stage.validation_seed,
+                               poses=self.poses)
+        return {"success": result.succ, "lift": float(np.mean(result.final_lifts))}
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+
+def plot_learning_curve(path: Path, history: list[dict], title: str, validations: list[dict] = ()) -> Path:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 3))
@@ -161,9 +195,14 @@ def plot_learning_curve(path: Path, history: list[dict], title: str) -> Path:
     ax.set_ylabel("mean reward per step")
     ax2 = fig.add_subplot(1, 2, 2)
     rows = [h for h in history if "success" in h]
-    ax2.plot([h["frames"] for h in rows], [h["success"] for h in rows])
+    ax2.plot([h["frames"] for h in rows], [h["success"] for h in rows], label="sampled episodes")
+    if validations:  # iteration -> frames of that iteration (0 before the first)
+        frames = {0: 0, **{h["iteration"]: h["frames"] for h in history}}
+        ax2.plot([frames.get(v["iteration"], 0) for v in validations], [v["success"] for v in validations], "o-",
+                 label="validation (deterministic)")
+        ax2.legend(fontsize=7)
     ax2.set_xlabel("frames")
-    ax2.set_ylabel("episode success")
+    ax2.set_ylabel("success")
     fig.suptitle(title)
     fig.tight_layout()
     return atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
@@ -184,21 +223,37 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
                              lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed)
 
     def progress(iteration: int, total: int, info: dict) -> None:
+        if "reward" not in info:  # the validation of the untrained actor
+            check = info["validation"]
+            print(f"specialists {unit} ({label}) validation before training: success {check['success']:.2f} "
+                  f"lift {check['lift']:.3f} m ({check['validate_s']:.0f}s)", file=sys.stderr, flush=True)
+            return
         success = f" success {info['success']:.2f}" if "success" in info else ""
-        print(f"specialists {unit} ({label}) iteration {iteration}/{total} reward {info['reward']:.3f}{success} "
-              f"ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
+        validated = f" validation {info['val_success']:.2f}" if "val_success" in info else ""
+        print(f"specialists {unit} ({label}) iteration {iteration}/{total} reward {info['reward']:.3f}{success}"
+              f"{validated} ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
 
     init = initial_action(stage, hand.actuated_joint_names)
-    result = train_ppo(factory, stage.ppo, folder / "policy.pt", progress, init_action=init)
+    validation = BinValidation(factory, len(records), stage)
+    try:
+        result = train_ppo(factory, stage.ppo, folder / "policy.pt", progress, init_action=init, validate=validation)
+    finally:
+        validation.close()
     history = atomic_write_json(folder / "history.json", result.history)
-    curve = plot_learning_curve(folder / "learning_curve.png", result.history, f"{label} ({len(records)} pre-grasps)")
+    validations = atomic_write_json(folder / "validations.json", {"best": result.best, "rows": result.validations})
+    curve = plot_learning_curve(folder / "learning_curve.png", result.history, f"{label} ({len(records)} pre-grasps)",
+                                result.validations)
     last = result.history[-1] if result.history else {}
     metrics = {"records": len(records), "iterations": len(result.history), "frames": int(last.get("frames", 0)),
                "final_reward": round(float(last.get("reward", 0.0)), 6)}
     if "success" in last:
         metrics["final_success"] = round(float(last["success"]), 6)
+    if result.best is not None:
+        metrics.update(best_iteration=int(result.best["iteration"]),
+                       best_validation_success=round(float(result.best["success"]), 6),
+                       start_validation_success=round(float(result.validations[0]["success"]), 6))
     return UnitOutput(files={"policy": folder / "policy.pt", "records": records_path, "history": history,
-                             "learning_curve": curve, "urdf": urdf},
+                             "validations": validations, "learning_curve": curve, "urdf": urdf},
                       metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from})
 
 

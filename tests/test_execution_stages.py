@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 
@@ -63,6 +64,11 @@ def test_specialists_stage_trains_one_policy_per_bin(runs):
     for label, entry in index.items():
         state = load_checkpoint(entry["policy"])
         assert state["iteration"] == 2 and entry["metrics"]["records"] >= 1
+        # the smoke profile validates before training and after each iteration; the best validated actor is kept
+        validations = json.loads((Path(entry["folder"]) / "validations.json").read_text())
+        assert [v["iteration"] for v in validations["rows"]] == [0, 1, 2]
+        assert state["best"]["iteration"] == validations["best"]["iteration"] == entry["metrics"]["best_iteration"]
+        assert entry["metrics"]["best_validation_success"] == max(v["success"] for v in validations["rows"])
         records = json.loads(open(entry["records"]).read())
         assert all(len(r["scene"]["objects"]) <= 2 for r in records)
         assert "/" in label or "+" in label or label  # labels name the combination and the placement sector

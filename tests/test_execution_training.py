@@ -136,6 +136,41 @@ def test_ppo_killed_mid_training_resumes_from_its_last_checkpoint(factory, tmp_p
     assert resumed.resumed_from == done and [r["iteration"] for r in resumed.history] == list(range(1, done + 2))
 
 
+def test_validation_keeps_the_best_actor_across_a_resume_and_load_actor_serves_it(factory, tmp_path):
+    """ppo.validate_every: the untrained actor is validated first, then every k iterations; the checkpoint keeps the
+    best validated actor (success first, then lift; a tie keeps the earlier one) and load_actor serves it."""
+    from components.execution.ppo import load_actor
+
+    scores = iter([(0.5, 0.01), (0.1, 0.20), (0.9, 0.00), (0.9, 0.05), (0.2, 0.30)])
+    seen: list[tuple[dict, dict]] = []
+
+    def validate(actor):
+        success, lift = next(scores)
+        seen.append(({k: v.clone() for k, v in actor.state_dict().items()}, {"success": success, "lift": lift}))
+        return {"success": success, "lift": lift}
+
+    ckpt = tmp_path / "ppo.pt"
+    cfg = dict(TINY_PPO, validate_every=1)
+    first = train_ppo(factory, PPOConfig(iterations=2, **cfg), ckpt, validate=validate)
+    assert [v["iteration"] for v in first.validations] == [0, 1, 2]
+    assert {k: first.best[k] for k in ("iteration", "success", "lift")} == {"iteration": 2, "success": 0.9, "lift": 0.0}
+    assert [r["val_success"] for r in first.history] == [0.1, 0.9]
+    # resumed: the untrained actor is not validated again, the best survives, a later tie on success wins on lift
+    more = train_ppo(factory, PPOConfig(iterations=4, **cfg), ckpt, validate=validate)
+    assert [v["iteration"] for v in more.validations] == [0, 1, 2, 3, 4] and more.best["iteration"] == 3
+    env = factory()
+    try:
+        best, last = load_actor(ckpt, env).state_dict(), load_actor(ckpt, env, which="last").state_dict()
+    finally:
+        env.close()
+    assert all(torch.equal(best[k], seen[3][0][k]) for k in best)  # the weights validated at iteration 3
+    assert all(torch.equal(last[k], seen[4][0][k]) for k in last) and not all(torch.equal(best[k], last[k]) for k in best)
+    # without a validate callable (or with validate_every 0) nothing is validated and the last actor is served
+    plain = train_ppo(factory, PPOConfig(iterations=1, **dict(TINY_PPO, validate_every=0)), tmp_path / "p.pt",
+                      validate=validate)
+    assert plain.validations == [] and plain.best is None and len(seen) == 5
+
+
 def test_evaluation_protocol_with_the_scripted_baseline(factory):
     env = factory()
     try:

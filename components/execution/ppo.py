@@ -9,7 +9,13 @@ in process) or ``MultiSyncCollector`` (several processes), checkpoints with resu
 Each history row also has ``collect_s`` (waiting for the batch), ``update_s`` (the PPO epochs and the weight
 push to the workers) and ``frames_per_s`` (the iteration's frames over both), so a run says where its time went.
 
-Resume: a checkpoint (actor, critic, normaliser, optimiser, iteration, frames, history) is written
+Best policy: with ``validate_every`` > 0 and a ``validate`` callable (the caller's fixed set of seeded
+episodes, run with the deterministic policy), the actor is validated before the first update and every
+``validate_every`` iterations; the checkpoint keeps the best validated actor (``best``, highest success, then
+highest mean lift) beside the last one, and :func:`load_actor` serves it.  PPO's sampled-episode success
+says little about the mean action the evaluation runs, and a run can end below where it started.
+
+Resume: a checkpoint (actor, critic, normaliser, optimiser, iteration, frames, history, validations, best) is written
 atomically every ``checkpoint_every`` iterations and at the end; ``train_ppo`` on an existing
 checkpoint continues from its iteration (a finished one returns at once).  A corrupt checkpoint is a
 one-line error naming the file to delete.
@@ -17,6 +23,7 @@ one-line error naming the file to delete.
 
 from __future__ import annotations
 
+import copy
 import io
 import time
 from collections.abc import Callable
@@ -43,6 +50,8 @@ from components.fileio import atomic_write_bytes
 
 #: progress(iteration, total, info) after every iteration (info: reward, success, losses, eta_s, ...).
 ProgressFn = Callable[[int, int, dict], None]
+#: validate(actor) -> {"success": rate, "lift": mean final lift (m)} of the deterministic actor on fixed episodes.
+ValidateFn = Callable[["ProbabilisticActor"], dict]
 
 
 class PPOConfig(Section):
@@ -74,6 +83,12 @@ class PPOConfig(Section):
         "1.0 % (the learning rate made the difference; 0.05 kept as the best measured setting).")
     normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
     checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
+    validate_every: int = Field(
+        10, ge=0,
+        description="Iterations between validations of the deterministic policy on the caller's fixed episodes "
+        "(also before the first update and at the end); the best validated actor is kept and is the one evaluated.  "
+        "0 = no validation, the last actor is evaluated.  Validation runs in the learner's process while the "
+        "collectors wait (the specialists: specialists.validation_poses x validation_trials episodes).")
     seed: int = Field(0, ge=0, description="Seed of the networks and the collectors.")
 
 
@@ -148,14 +163,33 @@ class PPOResult:
     critic: ValueOperator
     history: list[dict] = field(default_factory=list)
     resumed_from: int = 0  # iterations found in the checkpoint at start
+    validations: list[dict] = field(default_factory=list)  # {'iteration', 'success', 'lift', 'validate_s'}
+    best: Optional[dict] = None  # the best validation row (no weights); None without validation
 
 
-def _save(path: Path, actor, critic, optimizer, iteration: int, frames: int, history: list, cfg: PPOConfig) -> None:
+def _save(path: Path, actor, critic, optimizer, iteration: int, frames: int, history: list, cfg: PPOConfig,
+          validations: list, best: Optional[dict]) -> None:
     buffer = io.BytesIO()
     torch.save({"format": "multigrasp-ppo", "version": 1, "actor": actor.state_dict(), "critic": critic.state_dict(),
                 "optimizer": optimizer.state_dict(), "iteration": iteration, "frames": frames, "history": history,
-                "config": cfg.model_dump(mode="json")}, buffer)
+                "validations": validations, "best": best, "config": cfg.model_dump(mode="json")}, buffer)
     atomic_write_bytes(path, buffer.getvalue())
+
+
+def _validate(validate: ValidateFn, actor, iteration: int, best: Optional[dict]) -> tuple[dict, Optional[dict]]:
+    """One validation row, and the best entry (row + actor weights) after it: higher success wins, then higher lift;
+    a tie keeps the earlier actor."""
+    start = time.perf_counter()
+    scores = validate(actor)
+    row = {"iteration": iteration, "success": float(scores["success"]), "lift": float(scores["lift"]),
+           "validate_s": round(time.perf_counter() - start, 3)}
+    if best is None or (row["success"], row["lift"]) > (best["success"], best["lift"]):
+        best = {**row, "actor": copy.deepcopy(actor.state_dict())}
+    return row, best
+
+
+def _without_weights(best: Optional[dict]) -> Optional[dict]:
+    return None if best is None else {k: v for k, v in best.items() if k != "actor"}
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -182,10 +216,12 @@ def _make_collector(env_factory: Callable[[], EnvBase], actor, cfg: PPOConfig, f
 
 
 def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Path,
-              progress: Optional[ProgressFn] = None, init_action: Optional[torch.Tensor] = None) -> PPOResult:
+              progress: Optional[ProgressFn] = None, init_action: Optional[torch.Tensor] = None,
+              validate: Optional[ValidateFn] = None) -> PPOResult:
     """Train (or resume) a lift policy; see the module docstring.  ``env_factory`` must be picklable when
     ``cfg.workers`` > 1 (it is called in each worker).  ``init_action``: the untrained actor's mean action
-    (:func:`build_actor_critic`; ignored on resume)."""
+    (:func:`build_actor_critic`; ignored on resume).  ``validate``: scores the deterministic actor (module
+    docstring, 'Best policy'); used when ``cfg.validate_every`` > 0."""
     probe = env_factory()
     actor, critic, norm = build_actor_critic(probe, cfg, init_action)
     probe.close()
@@ -194,7 +230,7 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
                               loss_critic_type="l2", normalize_advantage=True)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=critic, average_gae=False)
     optimizer = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
-    start_iteration, frames, history = 0, 0, []
+    start_iteration, frames, history, validations, best = 0, 0, [], [], None
     checkpoint = Path(checkpoint)
     if checkpoint.exists():
         state = load_checkpoint(checkpoint)
@@ -202,10 +238,18 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
         critic.load_state_dict(state["critic"])
         optimizer.load_state_dict(state["optimizer"])
         start_iteration, frames, history = state["iteration"], state["frames"], list(state["history"])
-    result = PPOResult(actor=actor, critic=critic, history=history, resumed_from=start_iteration)
+        validations, best = list(state.get("validations") or []), state.get("best")
+    validating = validate is not None and cfg.validate_every > 0
+    result = PPOResult(actor=actor, critic=critic, history=history, resumed_from=start_iteration,
+                       validations=validations, best=_without_weights(best))
     remaining = cfg.iterations - start_iteration
     if remaining <= 0:
         return result
+    if validating and not validations:  # the untrained actor (e.g. the scripted start) is the first candidate
+        row, best = _validate(validate, actor, start_iteration, best)
+        validations.append(row)
+        if progress is not None:
+            progress(start_iteration, cfg.iterations, {"validation": row})
 
     collector = _make_collector(env_factory, actor, cfg, remaining * cfg.frames_per_batch, cfg.seed + start_iteration)
     buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.frames_per_batch), sampler=SamplerWithoutReplacement(),
@@ -228,15 +272,21 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
                       "frames_per_s": round(data.numel() / max(updated - collect_start, 1e-9), 1)}
             collect_start = updated
             row = {"iteration": iteration, "frames": frames, **losses, **episode_stats(data), **timing}
+            validated = validating and (iteration % cfg.validate_every == 0 or iteration == cfg.iterations)
+            if validated:
+                check, best = _validate(validate, actor, iteration, best)
+                validations.append(check)
+                row.update(val_success=check["success"], val_lift=check["lift"])
             history.append(row)
             if progress is not None:
                 elapsed = time.perf_counter() - start
                 done_here = iteration - start_iteration
                 progress(iteration, cfg.iterations, {**row, "eta_s": elapsed / done_here * (cfg.iterations - iteration)})
-            if iteration % cfg.checkpoint_every == 0 or iteration == cfg.iterations:
-                _save(checkpoint, actor, critic, optimizer, iteration, frames, history, cfg)
+            if validated or iteration % cfg.checkpoint_every == 0 or iteration == cfg.iterations:
+                _save(checkpoint, actor, critic, optimizer, iteration, frames, history, cfg, validations, best)
     finally:
         collector.shutdown()
+    result.best = _without_weights(best)
     return result
 
 
@@ -275,13 +325,19 @@ def episode_stats(data: TensorDictBase) -> dict:
     return out
 
 
-def load_actor(path: Path, env: EnvBase) -> ProbabilisticActor:
-    """The trained actor of a checkpoint, for ``env``'s specs (observation normaliser included)."""
+def load_actor(path: Path, env: EnvBase, which: str = "best") -> ProbabilisticActor:
+    """The trained actor of a checkpoint, for ``env``'s specs (observation normaliser included).  ``which``:
+    ``best`` -- the best validated actor (module docstring), the last one when the run did not validate;
+    ``last`` -- the actor of the last iteration."""
+    if which not in ("best", "last"):
+        raise ValueError(f"load_actor: which={which!r}, expected 'best' or 'last'")
     state = load_checkpoint(Path(path))
     cfg = PPOConfig(**state["config"])
     actor, _, _ = build_actor_critic(env, cfg)
+    best = state.get("best")
+    weights = best["actor"] if which == "best" and best is not None else state["actor"]
     try:
-        actor.load_state_dict(state["actor"])
+        actor.load_state_dict(weights)
     except RuntimeError:
         raise MultigraspError(f"PPO checkpoint {path} does not fit this environment's observation / action sizes; "
                               "retrain it (multigrasp run --until specialists)") from None
