@@ -190,6 +190,24 @@ def test_trial_perturbations_are_seeded_small_and_keep_the_coupling(env, record)
     assert np.allclose(env.world.coupled(q), q, atol=1e-6)  # J0 follows J1, within limits
 
 
+def test_training_resets_are_perturbed_like_trials_only_when_asked(hand, library, record, tmp_path):
+    urdf = hand.export_urdf(tmp_path)
+    encoder = PointNetEncoder(PointNetConfig()).eval()
+    for perturb in (False, True):
+        env = LiftEnv(hand, library, urdf, [record], LiftEnvConfig(train_perturbation=perturb), encoder, seed=3)
+        starts = []
+        try:
+            for _ in range(2):
+                env.reset()
+                starts.append(env.world.read().palm_pos)
+        finally:
+            env.close()
+        same = np.allclose(starts[0], starts[1], atol=1e-6)
+        assert same != perturb
+        if perturb:
+            assert np.abs(starts[0] - record.p).max() < 5 * LiftEnvConfig().trial_position_noise_m
+
+
 def test_bench_sim_writes_rates_ratio_and_physics_share(tmp_path):
     import json
 

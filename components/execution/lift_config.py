@@ -126,6 +126,11 @@ class LiftEnvConfig(Section):
         "the paper's 5 trials per pose differ by such perturbations.")
     trial_joint_noise_rad: float = Field(
         0.02, ge=0.0, description="Evaluation: ...and its 18 actuated joints by N(0, this^2) (rad), J0 coupled.")
+    train_perturbation: bool = Field(
+        False,
+        description="Perturb every training reset's pre-grasp as an evaluation trial is perturbed (trial_position_noise_m, "
+        "trial_joint_noise_rad; drawn from the env's seeded generator), so that PPO trains on the starts it is "
+        "evaluated on.  False: training starts at the exact pre-grasps (README 'Best-policy selection').")
 
     # ------------------------------------------------------------------ observation
     goal_observations: bool = Field(

@@ -133,6 +133,9 @@ class LiftEnv(EnvBase):
         forced, self._forced = self._forced, None
         if forced is None:
             record = self._pick_record()
+            if self.cfg.train_perturbation:  # a training start drawn as an evaluation trial is (LiftEnvConfig)
+                record = self.world.perturbed(record, self._rng, self.cfg.trial_position_noise_m,
+                                              self.cfg.trial_joint_noise_rad)
         else:
             record = self.records[forced[0]]
             if forced[1] is not None:
