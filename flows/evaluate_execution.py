@@ -176,7 +176,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         reach_memo = {} if reach_memo is None else reach_memo
         hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     gif_paths: list[Path] = []
-    progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups))
+    progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups),
+                         passes=3 if scripted else 1, every=stage.eval_progress_every)
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
@@ -191,7 +192,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         env = factory()
         try:
             actor = load_actor(Path(entry["policy"]), env)
-            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys)
+            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
+                                   on_rollout=progress.on_rollout(label, "policy", len(group)))
             out.wins += sum(result.successes_per_pose)
             out.total += result.n_poses * result.trials
             out.poses += result.n_poses
@@ -202,13 +204,15 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                 plain = env if paper is factory else paper()
                 try:
                     base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                         seed=stage.eval_seed, seed_keys=keys)
+                                         seed=stage.eval_seed, seed_keys=keys,
+                                         on_rollout=progress.on_rollout(label, "w/o RL", len(group)))
                 finally:
                     if plain is not env:
                         plain.close()
                 out.scripted_wins += sum(base.successes_per_pose)
                 out.scripted_total += base.n_poses * base.trials
-                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys)
+                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
+                                     on_rollout=progress.on_rollout(label, "squeeze", len(group)))
                 out.squeeze_wins += sum(held.successes_per_pose)
                 out.squeeze_total += held.n_poses * held.trials
             progress.specialist_done(label, len(group), out, scripted)
@@ -239,16 +243,40 @@ def pose_key(record, index: int) -> int:
 
 
 class _Progress:
-    """Log lines of one evaluated split: what it will do, then counts, elapsed and ETA per specialist."""
+    """Log lines of one evaluated split: what it will do, a line every ``every`` poses of each pass (the specialist,
+    and with the scripted rows w/o RL and the squeeze: ``passes`` 3), and counts, elapsed and ETA per specialist."""
 
-    def __init__(self, say: Callable[[str], None] | None, title: str, poses: int, trials: int, specialists: int):
+    def __init__(self, say: Callable[[str], None] | None, title: str, poses: int, trials: int, specialists: int,
+                 passes: int = 1, every: int = 0):
         self.say, self.title, self.poses, self.done = say or (lambda _: None), title, poses, 0
+        self.trials, self.passes, self.every, self.pass_poses = trials, passes, every, 0  # pose-passes finished
         self.start = time.monotonic()
         self.say(f"[bold cyan]evaluate execution[/] {title}: {poses} pose(s) x {trials} trial(s) with "
                  f"{specialists} specialist(s)")
 
+    def _eta(self) -> str:
+        elapsed, total = time.monotonic() - self.start, self.poses * self.passes
+        left = f", ETA {elapsed / self.pass_poses * (total - self.pass_poses):.0f}s" if 0 < self.pass_poses < total else ""
+        return f"elapsed {elapsed:.0f}s{left}"
+
+    def on_rollout(self, label: str, phase: str, poses: int) -> Callable[[int, int, object], None]:
+        """The ``evaluate_lift(on_rollout=...)`` of one pass over ``poses`` poses: counts a pose when its last trial ends and says a line
+        every ``every`` poses."""
+        count = [0]
+
+        def seen(pose: int, trial: int, rollout: object) -> None:
+            if trial != self.trials - 1:
+                return
+            count[0] += 1
+            self.pass_poses += 1
+            if self.every and count[0] % self.every == 0:
+                self.say(f"[bold cyan]evaluate execution[/] {self.title}, specialist {label}, {phase}: "
+                         f"{count[0]}/{poses} poses, {self._eta()}")
+        return seen
+
     def specialist_done(self, label: str, poses: int, out: SplitResult, scripted: bool) -> None:
         self.done += poses
+        self.pass_poses = self.done * self.passes
         elapsed = time.monotonic() - self.start
         eta = f", ETA {elapsed / self.done * (self.poses - self.done):.0f}s" if self.done < self.poses else ""
         extra = (f", w/o RL {out.scripted_wins}/{out.scripted_total}, squeeze {out.squeeze_wins}/{out.squeeze_total}"

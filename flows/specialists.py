@@ -13,7 +13,7 @@ from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
-from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task
+from tasks.specialists import SPECIALIST_CODE_DIRS, TRAINING_FIELDS, merge_task, select_records, train_bin_task
 from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
 
@@ -30,6 +30,15 @@ def bin_unit(label: str) -> str:
     return "bin-" + re.sub(r"[^A-Za-z0-9+_.-]", "-", label)
 
 
+def bin_config_digest(cfg: PipelineConfig) -> str:
+    """The config part of every bin's cache key: specialists.ppo, the specialists fields that change training
+    (:data:`tasks.specialists.TRAINING_FIELDS`), lift, hand and objects.  Until the twenty-third session it left out
+    the training fields, so ``--set specialists.init_policy=zero`` (or another squeeze or validation setting) was
+    served the specialists trained with the old value."""
+    fields = [f"specialists.{name}" for name in TRAINING_FIELDS]
+    return section_digest(cfg, "specialists.ppo", *fields, "lift", "hand", "objects")
+
+
 def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
              tracking_uri: str | None = None) -> list[tuple[UnitSpec, str, list[dict]]]:
     """(spec, bin label, records as dicts) of every trained bin, largest bins first (``max_bins``)."""
@@ -40,7 +49,7 @@ def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | N
     bins.sort(key=lambda item: (-len(item[1]), item[0]))
     if stage.max_bins:
         bins = bins[: stage.max_bins]
-    base = section_digest(cfg, "specialists.ppo", "lift", "hand", "objects")
+    base = bin_config_digest(cfg)
     code = code_version(*SPECIALIST_CODE_DIRS)
     plan = []
     for label, idx in sorted(bins):

@@ -44,6 +44,11 @@ SQUEEZE_JOINTS = ("FFJ2", "FFJ1", "MFJ2", "MFJ1", "RFJ2", "RFJ1", "LFJ2", "LFJ1"
 
 SPECIALIST_CODE_DIRS = ("components/execution", "components/hand", "assets/hand", "components/objects",
                         "assets/objects", "tasks/specialists.py", "tasks/grasp_tables.py")
+# Fields of the specialists section, outside ``ppo``, that change what a bin trains (its start, its selection): part of
+# every bin's cache key with specialists.ppo, lift, hand and objects.  Which records a bin gets (splits, records_source,
+# clustering, ...) reaches the key through the records' digest; eval_* / gifs_* / max_bins do not change a bin.
+TRAINING_FIELDS = ("init_policy", "squeeze_joints", "squeeze_action", "squeeze_force_fraction",
+                   "validation_poses", "validation_trials", "validation_seed")
 
 
 class SpecialistsStageConfig(Section):
@@ -76,6 +81,10 @@ class SpecialistsStageConfig(Section):
         "planned path from an open hand, run in PyBullet with reach.reaching) and lift from the end-of-reach state, "
         "objects where the reach left them (paper §'Execution Policy': reaching, then lifting).  False: lift from the "
         "pre-grasp itself.")
+    eval_progress_every: int = Field(
+        10, ge=0,
+        description="multigrasp evaluate execution: a progress line (poses done, elapsed, ETA) every this many "
+        "evaluated poses of each pass (specialist, w/o RL, squeeze), besides one per specialist; 0: per specialist only.")
     gifs_per_outcome: int = Field(
         2, ge=0, description="multigrasp evaluate execution: GIFs of this many successful and this many failed trials "
         "per specialist, logged to MLflow (each replays a trial with the CPU renderer, ~1 s).")

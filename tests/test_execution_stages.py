@@ -115,7 +115,8 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     workdir, _, _ = runs
     config = next((workdir.parent).glob("exec-config*/stage.yaml"))
     argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=2"]:
+    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=2",
+                 "specialists.eval_progress_every=1"]:
         argv += ["--set", item]
     assert main(argv) == 0
     rows = json.loads((workdir / "results" / "execution.json").read_text())["rows"]
@@ -136,6 +137,22 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     assert "evaluate execution Syn-Pl:" in err and "evaluate execution Syn-Geo:" in err
     if rows[0]["n_poses"]:
         assert "lifted " in err and "w/o RL " in err
+        assert "policy: 1/1 poses" in err and "squeeze: 1/1 poses" in err  # a line per pose of each pass here
+
+
+def test_evaluation_progress_says_a_line_every_k_poses_of_each_pass_with_an_eta():
+    from flows.evaluate_execution import _Progress
+
+    lines = []
+    progress = _Progress(lines.append, "Syn-Pl", poses=4, trials=2, specialists=1, passes=3, every=2)
+    for phase in ("policy", "w/o RL"):
+        seen = progress.on_rollout("cube+frustum/0", phase, 4)
+        for pose in range(4):
+            for trial in range(2):
+                seen(pose, trial, None)
+    said = [line for line in lines if "poses, elapsed" in line]
+    assert len(said) == 4 and "cube+frustum/0, policy: 2/4 poses" in said[0] and "w/o RL: 4/4 poses" in said[-1]
+    assert all("ETA" in line for line in said)  # 8 of the 12 pose-passes are done after the second pass
 
 
 def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(runs, monkeypatch):
@@ -276,3 +293,26 @@ def test_evaluate_execution_with_ablations_trains_and_evaluates_the_variants(run
     assert goal["overrides"] == {"lift.goal_observations": False}
     trained = [e for e in executions(workdir)[before:] if e.startswith("specialists/bin-")]
     assert trained, "the w/o Goal specialists are trained by the ablation run"
+
+
+@pytest.mark.parametrize("override, changes", [
+    ("specialists.init_policy=zero", True),
+    ("specialists.squeeze_action=0.3", True),
+    ("specialists.squeeze_force_fraction=0.3", True),
+    ("specialists.validation_poses=7", True),
+    ("specialists.validation_seed=9", True),
+    ("specialists.ppo.lr=0.001", True),
+    ("lift.w_object=0.5", True),
+    ("specialists.eval_poses=7", False),
+    ("specialists.max_bins=1", False),
+    ("specialists.gifs_per_outcome=0", False),
+])
+def test_a_bins_cache_key_follows_every_setting_that_changes_its_training(tmp_path, override, changes):
+    """The specialists fields outside ppo that change a bin's start or its best-policy selection are in its key
+    (init_policy was not, so an ablation with another start was served the cached specialists); evaluation-only
+    fields are not, so evaluating differently retrains nothing."""
+    from flows.config import load_config
+    from flows.specialists import bin_config_digest
+
+    base = bin_config_digest(load_config("smoke", workdir=tmp_path))
+    assert (bin_config_digest(load_config("smoke", sets=[override], workdir=tmp_path)) != base) is changes
