@@ -14,10 +14,16 @@ Units:
   validation pre-grasps before training and every ``ppo.validate_every`` iterations; the best validated actor
   is the one evaluated, :class:`BinValidation`) and ``learning_curve.png``.
 - ``merge`` -- ``index.json``: bin label -> policy, records, number of records and final metrics.
+
+Training longer: a bin unit without a checkpoint of its own starts from the checkpoint of the same bin's finished
+unit with the most iterations, up to ``ppo.iterations``, that differs only in ``ppo.iterations`` /
+``checkpoint_every`` (same records, encoder, code and every other setting: :func:`longest_finished_bin`), so
+``--set specialists.ppo.iterations=200`` after a 100-iteration run trains 100 more, not 200.
 """
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 from typing import Any, Literal
@@ -31,10 +37,10 @@ from components.errors import MultigraspError
 from components.execution.clustering import ClusteringConfig
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import GraspRecord
-from components.execution.ppo import PPOConfig
+from components.execution.ppo import EXTENDABLE_FIELDS, PPOConfig
 from components.objects import Scene
 from components.objects.config import ObjectsConfig
-from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with
+from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with, digest, read_manifest, verify
 from tasks.grasp_tables import RecordsSource, grasp_rows
 from tasks.preflight import cache_dir
 from tasks.units import UnitOutput, UnitSpec, VerifiedUnitCache, run_unit
@@ -217,13 +223,48 @@ def plot_learning_curve(path: Path, history: list[dict], title: str, validations
     return atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
 
 
+def training_digest(stage: SpecialistsStageConfig, lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg) -> str:
+    """Digest of everything in the config that shapes a bin's training except the extendable PPO fields
+    (:data:`components.execution.ppo.EXTENDABLE_FIELDS`); stored in the bin manifest's meta as ``training``."""
+    ppo = {k: v for k, v in stage.ppo.model_dump(mode="json").items() if k not in EXTENDABLE_FIELDS}
+    fields = {name: getattr(stage, name) for name in TRAINING_FIELDS}
+    return digest({"ppo": ppo, "fields": fields, "lift": lift.model_dump(mode="json"),
+                   "objects": objects.model_dump(mode="json"), "hand": hand_cfg.model_dump(mode="json")})
+
+
+def longest_finished_bin(spec: UnitSpec, training: str, iterations: int) -> tuple[Manifest, int] | None:
+    """The finished unit of the same bin beside ``spec.folder`` that a training of ``iterations`` can continue: same
+    unit name, records and encoder (``upstream``), code version and ``training`` digest, at most ``iterations``
+    iterations, intact files; the one with the most iterations, and that count.  None if there is none."""
+    best = None
+    for other in sorted(spec.folder.parent.iterdir()) if spec.folder.parent.is_dir() else []:
+        manifest = read_manifest(other) if other != spec.folder and other.is_dir() else None
+        if manifest is None or manifest.unit != spec.unit or manifest.code_version != spec.code \
+                or manifest.upstream != dict(spec.upstream) or manifest.meta.get("training") != training \
+                or "policy" not in manifest.files or verify(manifest):
+            continue
+        done = int(manifest.metrics.get("iterations", 0))
+        if done <= iterations and (best is None or done > best[1]):
+            best = (manifest, done)
+    return best
+
+
 def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: SpecialistsStageConfig,
-              lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder: Path, cache: Path, unit: str) -> UnitOutput:
+              lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder: Path, cache: Path,
+              spec: UnitSpec) -> UnitOutput:
     from components.execution.factory import LiftEnvFactory
     from components.execution.ppo import train_ppo
     from components.execution.records import record_from_dict, save_records
     from components.hand import HandModel
 
+    unit, training, extended_from = spec.unit, training_digest(stage, lift, objects, hand_cfg), ""
+    if not (folder / "policy.pt").exists():  # no checkpoint of its own yet: continue a shorter finished training
+        found = longest_finished_bin(spec, training, stage.ppo.iterations)
+        if found is not None:
+            shutil.copyfile(found[0].path("policy"), folder / "policy.pt")
+            extended_from = found[0].key
+            print(f"specialists {unit} ({label}): continuing the finished {found[1]}-iteration training "
+                  f"{found[0].folder} to {stage.ppo.iterations} iterations", file=sys.stderr, flush=True)
     records_path = save_records(folder / "records.json", [record_from_dict(r) for r in records])
     hand = HandModel(hand_cfg)
     urdf = hand.export_urdf(folder / "hand.urdf")
@@ -263,7 +304,8 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
                        start_validation_success=round(float(result.validations[0]["success"]), 6))
     return UnitOutput(files={"policy": folder / "policy.pt", "records": records_path, "history": history,
                              "validations": validations, "learning_curve": curve, "urdf": urdf},
-                      metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from})
+                      metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from,
+                                             "extended_from": extended_from, "training": training})
 
 
 @task(name="specialist-bin", cache_policy=VerifiedUnitCache(), persist_result=True)
@@ -271,7 +313,7 @@ def train_bin_task(spec: UnitSpec, label: str, records: list[dict[str, Any]], st
                    lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder_path: str) -> Manifest:
     """Prefect unit: one specialist (PPO checkpoint kept in the unit folder: a rerun after a crash resumes)."""
     return run_unit(spec, lambda folder: train_bin(folder, label, records, stage, lift, objects, hand_cfg,
-                                                   Path(encoder_path), cache_dir(Path(spec.workdir)), spec.unit))
+                                                   Path(encoder_path), cache_dir(Path(spec.workdir)), spec))
 
 
 @task(name="specialists-merge", cache_policy=VerifiedUnitCache(), persist_result=True)

@@ -316,3 +316,26 @@ def test_a_bins_cache_key_follows_every_setting_that_changes_its_training(tmp_pa
 
     base = bin_config_digest(load_config("smoke", workdir=tmp_path))
     assert (bin_config_digest(load_config("smoke", sets=[override], workdir=tmp_path)) != base) is changes
+
+
+def test_raising_the_iterations_continues_the_finished_specialists(runs, capsys):
+    """Training longer: ppo.iterations 2 -> 3 retrains no iteration already done; each bin continues from its
+    finished 2-iteration checkpoint (history and validations go on from there)."""
+    from components.execution.ppo import load_checkpoint
+
+    workdir, _, _ = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "specialists"]
+    for item in [*ACCEPT_ALL, *TINY, "specialists.ppo.iterations=3"]:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    assert "continuing the finished 2-iteration training" in capsys.readouterr().err
+    index = json.loads(_final(workdir, "specialists").path("index").read_text())
+    for entry in index.values():
+        manifest = read_manifest(Path(entry["folder"]))
+        assert manifest.meta["resumed_from"] == 2 and manifest.meta["extended_from"]
+        assert load_checkpoint(entry["policy"])["iteration"] == 3
+        history = json.loads(manifest.path("history").read_text())
+        assert [h["iteration"] for h in history] == [1, 2, 3]
+        validations = json.loads(manifest.path("validations").read_text())["rows"]
+        assert [v["iteration"] for v in validations] == [0, 1, 2, 3]

@@ -17,7 +17,8 @@ says little about the mean action the evaluation runs, and a run can end below w
 
 Resume: a checkpoint (actor, critic, normaliser, optimiser, iteration, frames, history, validations, best) is written
 atomically every ``checkpoint_every`` iterations and at the end; ``train_ppo`` on an existing
-checkpoint continues from its iteration (a finished one returns at once).  A corrupt checkpoint is a
+checkpoint continues from its iteration (a finished one returns at once), also when ``iterations`` was raised
+(:data:`EXTENDABLE_FIELDS`: a finished training continued to more iterations, as a resume after a crash is).  A corrupt checkpoint is a
 one-line error naming the file to delete.
 """
 
@@ -47,6 +48,10 @@ from torchrl.objectives.value import GAE
 from components.config_base import Section
 from components.errors import MultigraspError
 from components.fileio import atomic_write_bytes
+
+#: PPOConfig fields a finished training can be continued across: raising ``iterations`` trains on from the last
+#: checkpoint (``checkpoint_every`` only says when checkpoints are written).
+EXTENDABLE_FIELDS = frozenset({"iterations", "checkpoint_every"})
 
 #: progress(iteration, total, info) after every iteration (info: reward, success, losses, eta_s, ...).
 ProgressFn = Callable[[int, int, dict], None]
