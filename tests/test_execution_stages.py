@@ -38,6 +38,15 @@ def runs(tmp_path_factory):
     return workdir, first, executions(workdir)
 
 
+def _rerun_argv(workdir, *sets: str) -> list[str]:
+    """The fixture's ``multigrasp run --until specialists`` with more ``--set``s."""
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "specialists"]
+    for item in [*ACCEPT_ALL, *TINY, *sets]:
+        argv += ["--set", item]
+    return argv
+
+
 def _final(workdir, stage):
     manifests = [m for m in map(read_manifest, (workdir / "stages" / stage).iterdir()) if m is not None]
     return max((m for m in manifests if m.unit in ("merge", "stage")), key=lambda m: m.created_unix)
@@ -87,11 +96,7 @@ def test_fewer_bins_reuse_the_trained_specialists(runs):
 
     assert bin_unit("cube+frustum/0") == "bin-cube+frustum-0"
     workdir, _, after = runs
-    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
-    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "specialists"]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.max_bins=1"]:
-        argv += ["--set", item]
-    assert main(argv) == 0
+    assert main(_rerun_argv(workdir, "specialists.max_bins=1")) == 0
     new = executions(workdir)[len(after):]
     assert not [e for e in new if e.startswith("specialists/bin-")], new
     index = json.loads(_final(workdir, "specialists").path("index").read_text())
@@ -324,11 +329,7 @@ def test_raising_the_iterations_continues_the_finished_specialists(runs, capsys)
     from components.execution.ppo import load_checkpoint
 
     workdir, _, _ = runs
-    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
-    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "specialists"]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.ppo.iterations=3"]:
-        argv += ["--set", item]
-    assert main(argv) == 0
+    assert main(_rerun_argv(workdir, "specialists.ppo.iterations=3")) == 0
     assert "continuing the finished 2-iteration training" in capsys.readouterr().err
     index = json.loads(_final(workdir, "specialists").path("index").read_text())
     for entry in index.values():
