@@ -8,12 +8,13 @@ from pathlib import Path
 from prefect import flow
 
 from components.execution.clustering import assign_bins
+from components.execution.ppo import EXTENDABLE_FIELDS
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
-from tasks.specialists import SPECIALIST_CODE_DIRS, TRAINING_FIELDS, merge_task, select_records, train_bin_task
+from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task, training_digest
 from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
 
@@ -31,12 +32,15 @@ def bin_unit(label: str) -> str:
 
 
 def bin_config_digest(cfg: PipelineConfig) -> str:
-    """The config part of every bin's cache key: specialists.ppo, the specialists fields that change training
-    (:data:`tasks.specialists.TRAINING_FIELDS`), lift, hand and objects.  Until the twenty-third session it left out
-    the training fields, so ``--set specialists.init_policy=zero`` (or another squeeze or validation setting) was
-    served the specialists trained with the old value."""
-    fields = [f"specialists.{name}" for name in TRAINING_FIELDS]
-    return section_digest(cfg, "specialists.ppo", *fields, "lift", "hand", "objects")
+    """The config part of every bin's cache key: :func:`tasks.specialists.training_digest` (specialists.ppo, the
+    specialists fields that change training, :data:`tasks.specialists.TRAINING_FIELDS`, lift, hand and objects)
+    plus the extendable PPO fields (``iterations``, ``checkpoint_every``), so the key and the test for continuing a
+    shorter training (:func:`tasks.specialists.longest_finished_bin`) read the same definition.  Until the
+    twenty-third session the key left out the training fields, so ``--set specialists.init_policy=zero`` (or another
+    squeeze or validation setting) was served the specialists trained with the old value."""
+    stage = cfg.specialists
+    return digest({"training": training_digest(stage, cfg.lift, cfg.objects, cfg.hand),
+                   "extendable": {name: getattr(stage.ppo, name) for name in sorted(EXTENDABLE_FIELDS)}})
 
 
 def bin_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,

@@ -307,6 +307,7 @@ def test_evaluate_execution_with_ablations_trains_and_evaluates_the_variants(run
     ("specialists.validation_poses=7", True),
     ("specialists.validation_seed=9", True),
     ("specialists.ppo.lr=0.001", True),
+    ("specialists.ppo.iterations=7", True),
     ("lift.w_object=0.5", True),
     ("specialists.eval_poses=7", False),
     ("specialists.max_bins=1", False),
