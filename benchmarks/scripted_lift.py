@@ -30,19 +30,9 @@ from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool
 from components.errors import MultigraspError
 
 
-def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight",
-        q1_range: tuple[float, float] = (-np.inf, np.inf)) -> dict:
-    """The scripted lift on every combination's first ``max_poses`` accepted grasps whose stored Q1 lies in
-    ``q1_range`` (inclusive; module docstring)."""
-    from components.execution import LiftEnv
-    from components.execution.evaluation import ScriptedLift, evaluate_lift
-    from tasks.specialists import squeeze_lift
-    from components.execution.pointnet import PointNetEncoder
-    from components.hand import HandModel
-    from components.objects import ObjectLibrary
-    from tasks.preflight import cache_dir
-    from tasks.specialists import records_from_table
-
+def select_grasps(grasps: Path, split: str | None, q1_range: tuple[float, float] = (-np.inf, np.inf)):
+    """Every accepted grasp of ``split`` (None: all) whose stored Q1 lies in ``q1_range`` (inclusive); one-line
+    :class:`MultigraspError` when a bound is given and the table has no Q1 or nothing lies in the range."""
     frame = read_accepted(grasps, split, sys.maxsize)  # every accepted row; --max-poses caps each combination
     if np.isfinite(q1_range).any():
         if "q1" not in frame:
@@ -50,6 +40,20 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
         frame = frame[(frame["q1"] >= q1_range[0]) & (frame["q1"] <= q1_range[1])]
         if not len(frame):
             raise MultigraspError(f"no accepted grasps with Q1 in [{q1_range[0]}, {q1_range[1]}] in {grasps}")
+    return frame
+
+
+def scripted_setup(cfg, controller: str):
+    """(hand, object library, encoder, policy, lift env config) of a scripted lift: ``straight`` is the paper's
+    w/o RL (``specialists.scripted_force_fraction``, from the pre-grasp itself: no grasp closure), ``squeeze`` the
+    squeeze-and-lift PPO starts from (``specialists.squeeze_*``, the env as configured)."""
+    from components.execution.evaluation import ScriptedLift
+    from components.execution.pointnet import PointNetEncoder
+    from components.hand import HandModel
+    from components.objects import ObjectLibrary
+    from tasks.preflight import cache_dir
+    from tasks.specialists import squeeze_lift
+
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     # untrained, of the configured size: the scripted policy never reads the features (module docstring)
@@ -57,8 +61,21 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     stage = cfg.specialists
     policy = (ScriptedLift(stage.scripted_force_fraction) if controller == "straight"
               else squeeze_lift(stage, hand.actuated_joint_names))
-    # straight: the paper's w/o RL, from the pre-grasp itself (no grasp closure); squeeze: the env as configured
     lift = cfg.lift.model_copy(update={"closure_steps": 0}) if controller == "straight" else cfg.lift
+    return hand, library, encoder, policy, lift
+
+
+def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight",
+        q1_range: tuple[float, float] = (-np.inf, np.inf)) -> dict:
+    """The scripted lift on every combination's first ``max_poses`` accepted grasps whose stored Q1 lies in
+    ``q1_range`` (inclusive; module docstring)."""
+    from components.execution import LiftEnv
+    from components.execution.evaluation import evaluate_lift
+    from tasks.specialists import records_from_table
+
+    frame = select_grasps(grasps, split, q1_range)
+    hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
+    stage = cfg.specialists
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         urdf = hand.export_urdf(Path(tmp) / "hand")

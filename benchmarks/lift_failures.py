@@ -1,0 +1,200 @@
+"""Why scripted lifts fail: per episode and per object, what the hand touches at the pre-grasp, after the grasp
+closure, and at the end.
+
+    python -m benchmarks.lift_failures --profile bench --workdir runs/bench --split Pl --max-poses 5 --trials 2 \\
+        --json OUT
+
+For every combination's first ``--max-poses`` accepted grasps of a ``synthesize`` stage (found or given as in
+:mod:`benchmarks.grasp_tables`), ``--trials`` perturbed episodes each of the scripted lift of
+:mod:`benchmarks.scripted_lift` (``--controller squeeze`` by default: the env's grasp closure, then the squeeze-and-lift
+PPO starts from; the same seeds as ``multigrasp evaluate execution``), and for each object of each episode:
+
+* **at the pre-grasp** (the perturbed trial start, before any physics step): the hand links within
+  ``--near-mm`` (5 mm, the Q1 contact distance) of the object, PyBullet's closest points, the deepest penetration,
+  and the *opposition* of those links' contact normals;
+* **after the closure** (the episode's first observation): the same, the summed normal force of the contacts (N;
+  only where the closure ran: not with ``straight``, nor without a link near an object), and how far the closure moved the object (mm);
+* **at the end**: its lift and whether it is above ``lift.eval_success_height_m``.
+
+Opposition of a set of unit contact normals n_1..n_k is max_{i<j} -n_i . n_j: 1 for two directly opposing contacts
+(a pinch across the object), 0 for perpendicular ones, -1 for a single contact or none.  An object counts as
+*opposed* when its opposition exceeds ``--opposed-above`` (0.5: two contacts more than 120 degrees apart).  The
+summary splits the episodes into all / some / no objects lifted and gives each object's lift rate with and without
+opposition at the pre-grasp, the quantity that separates the grasps that lift from those that do not (README
+"Why the pre-grasps drop").  Each object of each episode is one row of the JSON's ``objects``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, resolve_source
+from benchmarks.scripted_lift import scripted_setup, select_grasps
+
+
+def opposition(normals: np.ndarray) -> float:
+    """max over pairs of -n_i . n_j of unit normals (k, 3) (module docstring); -1 for fewer than two."""
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    if len(n) < 2:
+        return -1.0
+    dots = -(n @ n.T)
+    return float(dots[np.triu_indices(len(n), 1)].max())
+
+
+def touching(world, body: int, radius: float, with_force: bool) -> dict:
+    """Hand links of ``world`` within ``radius`` (m) of object ``body``: count, opposition of their closest-point
+    normals (one per link, its nearest point), the smallest signed distance (mm; < 0 inside) and, ``with_force``
+    (only right after physics steps: PyBullet keeps the last step's contacts), the summed normal force of the
+    contact points (N)."""
+    import pybullet as pb
+
+    nearest: dict[int, tuple] = {}
+    for cp in pb.getClosestPoints(world.body, body, radius, physicsClientId=world.client):
+        if cp[3] not in nearest or cp[8] < nearest[cp[3]][8]:
+            nearest[cp[3]] = cp
+    out = {"links": len(nearest), "opposition": round(opposition([cp[7] for cp in nearest.values()]), 4),
+           "min_distance_mm": round(1e3 * min((cp[8] for cp in nearest.values()), default=radius), 3)}
+    if with_force:
+        out["normal_force_n"] = round(float(sum(cp[9] for cp in pb.getContactPoints(
+            world.body, body, physicsClientId=world.client))), 3)
+    return out
+
+
+def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str, near_m: float,
+        opposed_above: float) -> dict:
+    """Every episode's per-object record and the summary (module docstring)."""
+    import torch
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from components.execution import LiftEnv
+    from components.execution.evaluation import trial_seed
+    from tasks.specialists import records_from_table
+
+    frame = select_grasps(grasps, split)
+    hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
+    height, seed = lift.eval_success_height_m, cfg.specialists.eval_seed
+    objects, episodes = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        urdf = hand.export_urdf(Path(tmp) / "hand")
+        for combination, group in frame.groupby("combination", sort=True):
+            group = group.iloc[:max_poses]
+            env = LiftEnv(hand, library, urdf, records_from_table(group), lift, encoder, record_order="cycle")
+            world = env.world
+            try:
+                for pose in range(len(group)):
+                    for trial in range(trials):
+                        key = trial_seed(seed, pose, trial)
+                        # the trial's start, as the env's reset builds it (LiftEnv._reset), measured before any step
+                        start = world.reset(world.perturbed(env.records[pose], np.random.default_rng(key),
+                                                            lift.trial_position_noise_m, lift.trial_joint_noise_rad))
+                        before = [touching(world, body, near_m, False) for body in world.objects]
+                        start_pos = start.obj_pos.copy()
+                        env.set_next_record(pose, key)
+                        stepped = world.physics_seconds
+                        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+                            first = env.reset()
+                            closed = world.read()
+                            # contact forces only when the closure stepped the physics (it does not without links
+                            # near an object, or with closure_steps 0): PyBullet keeps the last step's contacts
+                            after = [touching(world, body, near_m, world.physics_seconds != stepped)
+                                     for body in world.objects]
+                            rollout = env.rollout(lift.max_steps, policy=policy, break_when_any_done=True,
+                                                  auto_reset=False, tensordict=first)
+                        end = world.read()
+                        lifts = end.obj_pos[:, 2] - env.episode.start_heights
+                        moved = np.linalg.norm(closed.obj_pos - start_pos, axis=1)
+                        q1 = float(group.iloc[pose]["q1"]) if "q1" in group else None
+                        for j, name in enumerate(env.records[pose].scene.names):
+                            objects.append({
+                                "combination": combination, "pose": pose, "trial": trial, "object": name, "q1": q1,
+                                "pregrasp": before[j], "after_closure": after[j],
+                                "closure_moved_mm": round(1e3 * float(moved[j]), 3),
+                                "final_lift_m": round(float(lifts[j]), 4), "lifted": bool(lifts[j] > height)})
+                        episodes.append({"combination": combination, "pose": pose, "trial": trial,
+                                         "success": bool(rollout[-1]["next", "success"]),
+                                         "objects_lifted": int((lifts > height).sum()), "n_objects": len(lifts),
+                                         "steps": int(rollout.shape[0])})
+            finally:
+                env.close()
+            print(f"lift failures: {combination} done", file=sys.stderr, flush=True)
+    return {"grasps": str(grasps), "split": split, "controller": controller, "closure_steps": lift.closure_steps,
+            "near_mm": round(near_m * 1e3, 3), "opposed_above": opposed_above,
+            "summary": summarise(episodes, objects, opposed_above), "episodes": episodes, "objects": objects}
+
+
+def _rate(flags) -> float | None:
+    return round(float(np.mean(flags)), 4) if len(flags) else None
+
+
+def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -> dict:
+    """Outcome counts, lift rates split by opposition at the pre-grasp, and what the closure did (module
+    docstring)."""
+    lifted = [o["lifted"] for o in objects]
+    opposed = [o["pregrasp"]["opposition"] > opposed_above for o in objects]
+    kept = [o["after_closure"]["opposition"] > opposed_above for o in objects]
+    every_opposed = []
+    for e in episodes:
+        mine = [o for o in objects if (o["combination"], o["pose"], o["trial"]) == (e["combination"], e["pose"], e["trial"])]
+        every_opposed.append(all(o["pregrasp"]["opposition"] > opposed_above for o in mine))
+    success = [e["success"] for e in episodes]
+    return {
+        "episodes": len(episodes), "success": _rate(success),
+        "outcome": {"all_lifted": sum(e["objects_lifted"] == e["n_objects"] for e in episodes),
+                    "some_lifted": sum(0 < e["objects_lifted"] < e["n_objects"] for e in episodes),
+                    "none_lifted": sum(e["objects_lifted"] == 0 for e in episodes)},
+        "objects": len(objects), "objects_lifted": _rate(lifted),
+        "pregrasp_opposed": _rate(opposed),
+        "lifted_if_pregrasp_opposed": _rate([l for l, o in zip(lifted, opposed) if o]),
+        "lifted_if_not_pregrasp_opposed": _rate([l for l, o in zip(lifted, opposed) if not o]),
+        "episodes_every_object_opposed": _rate(every_opposed),
+        "success_if_every_object_opposed": _rate([s for s, o in zip(success, every_opposed) if o]),
+        "success_otherwise": _rate([s for s, o in zip(success, every_opposed) if not o]),
+        "pregrasp_links_median": float(np.median([o["pregrasp"]["links"] for o in objects])) if objects else None,
+        "after_closure_opposed": _rate(kept),
+        "after_closure_links_median": float(np.median([o["after_closure"]["links"] for o in objects])) if objects else None,
+        "after_closure_no_contact": _rate([o["after_closure"]["normal_force_n"] == 0.0 for o in objects
+                                           if "normal_force_n" in o["after_closure"]]),
+        "closure_moved_mm_median": (round(float(np.median([o["closure_moved_mm"] for o in objects])), 2)
+                                    if objects else None),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.lift_failures", description=__doc__.split("\n\n")[0])
+    add_source_args(parser)
+    parser.add_argument("--max-poses", type=int, default=5, help="accepted grasps per combination (default 5)")
+    parser.add_argument("--trials", type=int, default=2, help="seeded perturbed trials per grasp (default 2)")
+    parser.add_argument("--controller", choices=("straight", "squeeze"), default="squeeze",
+                        help="squeeze (default): the env's grasp closure, then the squeeze-and-lift PPO starts from; "
+                        "straight: the paper's w/o RL")
+    parser.add_argument("--near-mm", type=float, default=5.0,
+                        help="a hand link this close to an object (mm) touches it at the pre-grasp (default 5)")
+    parser.add_argument("--opposed-above", type=float, default=0.5,
+                        help="an object is opposed when its contact normals' opposition exceeds this (default 0.5)")
+    parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    args = parser.parse_args(argv)
+    if (status := check_positive(args, "max_poses", "trials")) is not None:
+        return status
+    if not args.near_mm > 0 or not -1.0 <= args.opposed_above <= 1.0:
+        print("error: --near-mm must be positive and --opposed-above within [-1, 1]", file=sys.stderr)
+        return 2
+
+    def compute() -> dict:
+        cfg, grasps = resolve_source(args)
+        return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
+                   args.controller, args.near_mm * 1e-3, args.opposed_above)
+
+    def report(result: dict) -> None:
+        for key, value in result["summary"].items():
+            print(f"{key:32s} {value}")
+
+    return finish_tool(args.json, compute, report)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

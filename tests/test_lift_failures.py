@@ -1,0 +1,84 @@
+"""``python -m benchmarks.lift_failures``: what the hand touches at the pre-grasp, after the closure, at the end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from benchmarks.lift_failures import main, opposition, summarise
+from tests.test_scripted_lift import hand_above_sphere_table
+
+
+@pytest.mark.parametrize("normals, expected", [
+    ([[0, 0, 1], [0, 0, -1]], 1.0),  # a pinch across the object
+    ([[1, 0, 0], [0, 1, 0]], 0.0),  # perpendicular contacts
+    ([[1, 0, 0], [-0.5, np.sqrt(3) / 2, 0], [-0.5, -np.sqrt(3) / 2, 0]], 0.5),  # three contacts 120 degrees apart
+    ([[1, 0, 0], [1, 0, 0]], -1.0),  # two contacts on the same side
+    ([[0, 0, 1]], -1.0),  # one contact
+    (np.zeros((0, 3)), -1.0),  # none
+])
+def test_opposition_of_contact_normals(normals, expected):
+    assert opposition(np.asarray(normals, dtype=float)) == pytest.approx(expected)
+
+
+def _object(pose, opposed_before, opposed_after, lifted, force=1.0):
+    return {"combination": "a+b", "pose": pose, "trial": 0, "lifted": lifted, "closure_moved_mm": 2.0,
+            "pregrasp": {"links": 2, "opposition": 0.9 if opposed_before else -1.0},
+            "after_closure": {"links": 2, "opposition": 0.9 if opposed_after else -1.0, "normal_force_n": force}}
+
+
+def test_summary_splits_the_lift_rate_by_opposition_at_the_pregrasp():
+    """Pose 0: both objects opposed, both lift (success); pose 1: one opposed and lifted, the other neither."""
+    episodes = [{"combination": "a+b", "pose": 0, "trial": 0, "success": True, "objects_lifted": 2, "n_objects": 2},
+                {"combination": "a+b", "pose": 1, "trial": 0, "success": False, "objects_lifted": 1, "n_objects": 2}]
+    objects = [_object(0, True, True, True), _object(0, True, True, True),
+               _object(1, True, False, True), _object(1, False, False, False, force=0.0)]
+    s = summarise(episodes, objects, 0.5)
+    assert s["outcome"] == {"all_lifted": 1, "some_lifted": 1, "none_lifted": 0} and s["success"] == 0.5
+    assert s["pregrasp_opposed"] == 0.75 and s["lifted_if_pregrasp_opposed"] == 1.0
+    assert s["lifted_if_not_pregrasp_opposed"] == 0.0
+    assert s["episodes_every_object_opposed"] == 0.5 and s["success_if_every_object_opposed"] == 1.0
+    assert s["success_otherwise"] == 0.0 and s["after_closure_opposed"] == 0.5
+    assert s["after_closure_no_contact"] == 0.25 and s["closure_moved_mm_median"] == 2.0
+
+
+def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, capsys):
+    """The open hand of ``hand_above_sphere_table`` touches the sphere with one link only (a few mm deep): the
+    sphere is not opposed at the pre-grasp (opposition -1), the closure presses that one link (the physics ran, so
+    contact forces are read) and moves the sphere by at most a few mm, and nothing lifts."""
+    path = tmp_path / "grasps.parquet"
+    pq.write_table(hand_above_sphere_table(hand), path)
+    out = tmp_path / "failures.json"
+    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
+                 "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "2",
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["controller"] == "squeeze" and result["near_mm"] == 5.0 and result["closure_steps"] > 0
+    s = result["summary"]
+    assert s["episodes"] == 4 and s["objects"] == 4 and s["success"] == 0.0
+    assert s["outcome"]["none_lifted"] == 4 and s["objects_lifted"] == 0.0 and s["pregrasp_opposed"] == 0.0
+    assert s["lifted_if_pregrasp_opposed"] is None and s["lifted_if_not_pregrasp_opposed"] == 0.0
+    for record in result["objects"]:
+        assert record["object"] == "sphere" and not record["lifted"] and abs(record["final_lift_m"]) < 0.005
+        assert record["pregrasp"]["links"] == 1 and record["pregrasp"]["opposition"] == -1.0
+        assert record["after_closure"]["opposition"] == -1.0 and "normal_force_n" in record["after_closure"]
+        assert record["closure_moved_mm"] < 5.0
+    assert "pregrasp_opposed" in capsys.readouterr().out
+    # the straight lift has no closure: no physics before the first observation, no contact forces read
+    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
+                 "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "1", "--max-poses", "1",
+                 "--controller", "straight", "--json", str(out)]) == 0
+    straight = json.loads(out.read_text())
+    assert straight["closure_steps"] == 0 and straight["summary"]["after_closure_no_contact"] is None
+    assert all(r["closure_moved_mm"] == 0.0 for r in straight["objects"])
+
+
+def test_bad_options_are_one_line(tmp_path, capsys):
+    assert main(["--near-mm", "0", "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --near-mm must be positive") and "\n" not in err
+    assert main(["--trials", "0", "--json", str(tmp_path / "x.json")]) == 2
+    assert capsys.readouterr().err.strip().startswith("error: --max-poses and --trials")
