@@ -137,10 +137,14 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -
     lifted = [o["lifted"] for o in objects]
     opposed = [o["pregrasp"]["opposition"] > opposed_above for o in objects]
     kept = [o["after_closure"]["opposition"] > opposed_above for o in objects]
-    every_opposed = []
+    by_episode: dict[tuple, list[dict]] = {}
+    for o in objects:
+        by_episode.setdefault((o["combination"], o["pose"], o["trial"]), []).append(o)
+    every_opposed, every_kept = [], []
     for e in episodes:
-        mine = [o for o in objects if (o["combination"], o["pose"], o["trial"]) == (e["combination"], e["pose"], e["trial"])]
+        mine = by_episode.get((e["combination"], e["pose"], e["trial"]), [])
         every_opposed.append(all(o["pregrasp"]["opposition"] > opposed_above for o in mine))
+        every_kept.append(all(o["after_closure"]["opposition"] > opposed_above for o in mine))
     success = [e["success"] for e in episodes]
     return {
         "episodes": len(episodes), "success": _rate(success),
@@ -154,6 +158,8 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -
         "episodes_every_object_opposed": _rate(every_opposed),
         "success_if_every_object_opposed": _rate([s for s, o in zip(success, every_opposed) if o]),
         "success_otherwise": _rate([s for s, o in zip(success, every_opposed) if not o]),
+        "episodes_every_object_opposed_after_closure": _rate(every_kept),
+        "success_if_every_object_opposed_after_closure": _rate([s for s, k in zip(success, every_kept) if k]),
         "pregrasp_links_median": float(np.median([o["pregrasp"]["links"] for o in objects])) if objects else None,
         "after_closure_opposed": _rate(kept),
         "after_closure_links_median": float(np.median([o["after_closure"]["links"] for o in objects])) if objects else None,

@@ -42,6 +42,8 @@ def test_summary_splits_the_lift_rate_by_opposition_at_the_pregrasp():
     assert s["lifted_if_not_pregrasp_opposed"] == 0.0
     assert s["episodes_every_object_opposed"] == 0.5 and s["success_if_every_object_opposed"] == 1.0
     assert s["success_otherwise"] == 0.0 and s["after_closure_opposed"] == 0.5
+    assert s["episodes_every_object_opposed_after_closure"] == 0.5
+    assert s["success_if_every_object_opposed_after_closure"] == 1.0
     assert s["after_closure_no_contact"] == 0.25 and s["closure_moved_mm_median"] == 2.0
 
 
