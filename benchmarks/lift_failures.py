@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, resolve_source
-from benchmarks.scripted_lift import scripted_setup, select_grasps
+from benchmarks.scripted_lift import add_lift_args, scripted_setup, select_grasps
 
 
 def opposition(normals: np.ndarray) -> float:
@@ -173,11 +173,7 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.lift_failures", description=__doc__.split("\n\n")[0])
     add_source_args(parser)
-    parser.add_argument("--max-poses", type=int, default=5, help="accepted grasps per combination (default 5)")
-    parser.add_argument("--trials", type=int, default=2, help="seeded perturbed trials per grasp (default 2)")
-    parser.add_argument("--controller", choices=("straight", "squeeze"), default="squeeze",
-                        help="squeeze (default): the env's grasp closure, then the squeeze-and-lift PPO starts from; "
-                        "straight: the paper's w/o RL")
+    add_lift_args(parser, max_poses=5, trials=2, controller="squeeze")
     parser.add_argument("--near-mm", type=float, default=5.0,
                         help="a hand link this close to an object (mm) touches it at the pre-grasp (default 5)")
     parser.add_argument("--opposed-above", type=float, default=0.5,

@@ -104,14 +104,22 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
             "succ_all": round(wins / total, 4) if total else 0.0, "rows": rows}
 
 
+def add_lift_args(parser: argparse.ArgumentParser, max_poses: int, trials: int, controller: str) -> None:
+    """The options that say which grasps are lifted, how often and by which scripted controller."""
+    parser.add_argument("--max-poses", type=int, default=max_poses,
+                        help=f"accepted grasps per combination (default {max_poses})")
+    parser.add_argument("--trials", type=int, default=trials,
+                        help=f"seeded perturbed trials per grasp (default {trials}; the paper: 5)")
+    parser.add_argument("--controller", choices=("straight", "squeeze"), default=controller,
+                        help=f"straight: the paper's w/o RL (specialists.scripted_force_fraction); squeeze: the env's "
+                        f"grasp closure, then the squeeze-and-lift PPO starts from (specialists.squeeze_*); default "
+                        f"{controller}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.scripted_lift", description=__doc__.split("\n\n")[0])
     add_source_args(parser)
-    parser.add_argument("--max-poses", type=int, default=30, help="accepted grasps per combination (default 30)")
-    parser.add_argument("--trials", type=int, default=5, help="seeded perturbed trials per grasp (default 5, as the paper)")
-    parser.add_argument("--controller", choices=("straight", "squeeze"), default="straight",
-                        help="straight: the paper's w/o RL (specialists.scripted_force_fraction); squeeze: the "
-                        "squeeze-and-lift PPO starts from (specialists.squeeze_*)")
+    add_lift_args(parser, max_poses=30, trials=5, controller="straight")
     parser.add_argument("--min-q1", type=float, default=-np.inf, help="only grasps whose stored Q1 is at least this")
     parser.add_argument("--max-q1", type=float, default=np.inf, help="only grasps whose stored Q1 is at most this")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")

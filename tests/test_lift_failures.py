@@ -9,7 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from benchmarks.lift_failures import main, opposition, summarise
-from tests.test_scripted_lift import hand_above_sphere_table
+from tests.test_scripted_lift import hand_above_sphere_table, sphere_argv
 
 
 @pytest.mark.parametrize("normals, expected", [
@@ -54,9 +54,7 @@ def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, caps
     path = tmp_path / "grasps.parquet"
     pq.write_table(hand_above_sphere_table(hand), path)
     out = tmp_path / "failures.json"
-    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
-                 "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "2",
-                 "--json", str(out)]) == 0
+    assert main([*sphere_argv(path, tmp_path), "--trials", "2", "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     assert result["controller"] == "squeeze" and result["near_mm"] == 5.0 and result["closure_steps"] > 0
     s = result["summary"]
@@ -70,9 +68,8 @@ def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, caps
         assert record["closure_moved_mm"] < 5.0
     assert "pregrasp_opposed" in capsys.readouterr().out
     # the straight lift has no closure: no physics before the first observation, no contact forces read
-    assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"), "--split", "train",
-                 "--set", "objects.train=[sphere]", "--set", "objects.ood=[]", "--trials", "1", "--max-poses", "1",
-                 "--controller", "straight", "--json", str(out)]) == 0
+    assert main([*sphere_argv(path, tmp_path), "--trials", "1", "--max-poses", "1", "--controller", "straight",
+                 "--json", str(out)]) == 0
     straight = json.loads(out.read_text())
     assert straight["closure_steps"] == 0 and straight["summary"]["after_closure_no_contact"] is None
     assert all(r["closure_moved_mm"] == 0.0 for r in straight["objects"])
