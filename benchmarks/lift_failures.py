@@ -7,7 +7,9 @@ closure, and at the end.
 For every combination's first ``--max-poses`` accepted grasps of a ``synthesize`` stage (found or given as in
 :mod:`benchmarks.grasp_tables`), ``--trials`` perturbed episodes each of the scripted lift of
 :mod:`benchmarks.scripted_lift` (``--controller squeeze`` by default: the env's grasp closure, then the squeeze-and-lift
-PPO starts from; the same seeds as ``multigrasp evaluate execution``), and for each object of each episode:
+PPO starts from; the trial seeds of ``benchmarks.scripted_lift``, keyed by the pose's place in its combination --
+``multigrasp evaluate execution`` keys them by scene and row and picks other poses), and for each object of each
+episode:
 
 * **at the pre-grasp** (the perturbed trial start, before any physics step): the hand links within
   ``--near-mm`` (5 mm, the Q1 contact distance) of the object, PyBullet's closest points, the deepest penetration,
@@ -48,7 +50,7 @@ def opposition(normals: np.ndarray) -> float:
 
 def touching(world, body: int, radius: float, with_force: bool) -> dict:
     """Hand links of ``world`` within ``radius`` (m) of object ``body``: count, opposition of their closest-point
-    normals (one per link, its nearest point), the smallest signed distance (mm; < 0 inside) and, ``with_force``
+    normals (one per link, its nearest point), the smallest signed distance (mm; < 0 inside; ``radius`` when no link is that near) and, ``with_force``
     (only right after physics steps: PyBullet keeps the last step's contacts), the summed normal force of the
     contact points (N)."""
     import pybullet as pb
