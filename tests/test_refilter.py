@@ -57,3 +57,9 @@ def test_too_many_rows_to_score_is_one_line(hand, tmp_path, capsys):
                  "--filter", "filter_contact_distance_reduce=mean", "--json", str(tmp_path / "x.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: the new filter accepts 1 rows") and "--max-new" in err and "\n" not in err
+
+
+def test_no_stage_for_the_config_is_one_line(tmp_path, capsys):
+    assert main(["--profile", "smoke", "--workdir", str(tmp_path), "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: no synthesize stage output") and "--stage-dir" in err and "\n" not in err

@@ -377,3 +377,51 @@ def test_group_force_closure_for_pairs_writes_group_q1_and_the_hand_alone_q1(sta
     stats = json.loads(merge.path("stats").read_text())
     assert stats["overall"]["q1_group_rows"] == int(pairs.sum())
     assert "the hand alone" in merge.path("report").read_text()
+
+
+def _refilter_args(workdir, config, *extra: str) -> list[str]:
+    argv = ["--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in ACCEPT_ALL:
+        argv += ["--set", item]
+    return argv + list(extra)
+
+
+def test_refilter_rescores_every_candidate_of_the_configs_stage_and_writes_them(stage_runs, stage_config, tmp_path):
+    """``benchmarks.refilter`` finds the stage from the config; ``--rescore`` recomputes the terms (an E_fc margin no
+    grasp exceeds zeroes every E_fc, so a force-closure threshold only 0 meets accepts every row again), and
+    ``--write-grasps`` writes the accepted rows as a grasps table."""
+    import pandas as pd
+
+    from benchmarks.refilter import main as refilter
+
+    workdir = stage_runs[0]
+    strict = ["--filter", "filter_fc=1e-12"]
+    out, written = tmp_path / "strict.json", tmp_path / "strict.parquet"
+    assert refilter(_refilter_args(workdir, stage_config, *strict, "--json", str(out), "--write-grasps", str(written))) == 0
+    groups = json.loads(out.read_text())["groups"]
+    candidates = sum(g["stored"]["candidates"] for g in groups.values())
+    assert candidates == SCENES * BATCH and sum(g["stored"]["accepted"] for g in groups.values()) == candidates
+    rejected_fc = sum(g["refiltered"]["reasons"].get("fc", 0) for g in groups.values())
+    assert rejected_fc > 0  # the stored E_fc of the barely optimised candidates are above 1e-12
+    assert len(pd.read_parquet(written)) == candidates - rejected_fc
+    out, written = tmp_path / "rescored.json", tmp_path / "rescored.parquet"
+    assert refilter(_refilter_args(workdir, stage_config, *strict, "--rescore", "fc_margin=1e9", "--json", str(out),
+                                   "--write-grasps", str(written))) == 0
+    result = json.loads(out.read_text())
+    assert result["rescore"] == ["fc_margin=1e9"]
+    assert all(g["refiltered"]["accepted"] == g["stored"]["accepted"] for g in result["groups"].values())
+    table = pd.read_parquet(written)
+    assert len(table) == candidates and {"p", "R", "q", "contacts", "q1"} <= set(table.columns)
+    assert np.all(np.concatenate(table["term_fc_per_object"].to_numpy()) == 0.0)
+
+
+def test_refilter_rescore_under_another_config_than_the_stages_is_one_line(stage_runs, stage_config, tmp_path, capsys):
+    from benchmarks.refilter import main as refilter
+
+    workdir = stage_runs[0]
+    merge = _merge_manifest(workdir).folder
+    argv = _refilter_args(workdir, stage_config, "--stage-dir", str(merge), "--set", "synthesis.optimizer.fc_friction=0",
+                          "--rescore", "fc_margin=1e9", "--json", str(tmp_path / "x.json"))
+    assert refilter(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "does not reproduce the stored term_fc_per_object" in err and "--set" in err and "\n" not in err
