@@ -1,6 +1,6 @@
 """A synthesize stage's candidates re-filtered under other filter settings, without synthesising again.
 
-    python -m benchmarks.refilter --profile bench --workdir runs --set KEY=VALUE ... \
+    python -m benchmarks.refilter --profile bench --workdir runs --set KEY=VALUE ... \\
         --filter filter_contact_distance_reduce=mean --json OUT [--write-grasps FILE]
     python -m benchmarks.refilter ... --rescore fc_friction=0.5 --json OUT
 
