@@ -20,7 +20,8 @@ first scene's stored terms (one-line error otherwise: pass the ``--set`` options
 The rows that only the new filter accepts are scored with the stage's metrics (Q1 / PN, as the shards score
 theirs; ``--max-new`` caps that cost, ~0.6 s a grasp); the JSON summarises, per singles / pairs / more as
 :mod:`benchmarks.synthesis_progress` does, the stored filter, the new one and the newly accepted rows alone
-(``newly_accepted``).  Rows the new filter rejects keep their stored Q1 / PN out of the summary.
+(``newly_accepted``).  Rows the new filter rejects keep their stored Q1 / PN out of the summary.  With
+``synthesis.min_q1`` set, rows whose Q1 is not above it are rejected with reason ``q1``, as the stage does.
 ``--write-grasps FILE`` writes the accepted rows after re-filtering (every column, ``term_*`` rescored where
 ``--rescore`` asked) as a grasps table the other tools read with ``--grasps`` (``benchmarks.lift_failures``,
 ``benchmarks.scripted_lift``, ``benchmarks.q1_conventions``).
@@ -146,6 +147,7 @@ def run(frame, tables: list[Path], cfg, max_new: int, write_grasps: Path | None 
     from components.metrics import penetration_depth, q1_grasps
     from components.objects import ObjectLibrary
     from tasks.preflight import cache_dir
+    from tasks.synthesize import reject_weak
 
     frame = frame.reset_index(drop=True)
     accepted, reasons = refiltered(frame, cfg.synthesis.optimizer_for)
@@ -162,6 +164,10 @@ def run(frame, tables: list[Path], cfg, max_new: int, write_grasps: Path | None 
             q1[rows] = q1_grasps(hand, objects, p, R, q, metrics)[0].numpy()
             pn[rows] = penetration_depth(hand, objects, p, R, q, metrics).pn_mm.detach().double().numpy()
         frame.loc[scored["index"].to_numpy(), ["q1", "pn_mm"]] = np.stack([q1, pn], axis=1)
+    # the stage's synthesis.min_q1, as the shards apply it (rows it rejected come back here with their Q1 scored)
+    kept = reject_weak({"accepted": accepted, "reasons": np.array(reasons, dtype=object)}, frame["q1"].to_numpy(),
+                       cfg.synthesis.min_q1)
+    accepted, reasons = kept["accepted"], list(kept["reasons"])
     after = frame.assign(accepted=accepted, reason=reasons)
     if write_grasps is not None:
         write_grasps.parent.mkdir(parents=True, exist_ok=True)

@@ -63,3 +63,16 @@ def test_no_stage_for_the_config_is_one_line(tmp_path, capsys):
     assert main(["--profile", "smoke", "--workdir", str(tmp_path), "--json", str(tmp_path / "x.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: no synthesize stage output") and "--stage-dir" in err and "\n" not in err
+
+
+def test_min_q1_of_the_config_rejects_as_the_stage_does(hand, tmp_path):
+    """A Q1 bound no grasp meets rejects the stored accepted row and the row the mean rule brings back (reason q1)."""
+    stage = tmp_path / "stages" / "synthesize"
+    _shard(hand, stage / "shard")
+    out = tmp_path / "q1.json"
+    assert main(["--stage-dir", str(stage), "--profile", "smoke", "--workdir", str(tmp_path),
+                 "--set", "synthesis.min_q1=0.99", "--filter", "filter_contact_distance_reduce=mean",
+                 "--json", str(out)]) == 0
+    group = json.loads(out.read_text())["groups"]["singles"]
+    assert group["refiltered"]["accepted"] == 0 and group["refiltered"]["reasons"] == {"fc": 1, "q1": 2}
+    assert group["newly_rejected"] == 1
