@@ -43,6 +43,43 @@ class SynthesisConfig(Section):
         0.005, gt=0.0,
         description="Band (m) of E_sur: a hand sample at |d| from an object's surface weighs relu(1 - |d| / band) "
         "(default: the Q1 contact distance, 5 mm).")
+    w_q1: float = Field(
+        0.0, ge=0.0,
+        description="Weight of E_q1 (energy.q1_surrogate_energy) = sum_j relu(q1_target - Q1~_j): Q1~ a smooth Ferrari-Canny "
+        "Q1 of object j over the hand samples within q1_band_m of it (the metric's contacts: every touching sample, "
+        "circular friction cones of q1_friction), so the grasp is pushed towards what Q1 measures, not only towards "
+        "force closure of the 3 chosen contacts.  Added in the stages of q1_stages, never in the approach stage.  "
+        "0 = off (not in the official release).")
+    q1_target: float = Field(
+        0.4, gt=0.0,
+        description="E_q1 stops pulling an object once its Q1~ reaches this (the ideal six-contact sphere scores 0.41 under "
+        "the default metric).")
+    q1_band_m: float = Field(
+        0.005, gt=0.0, description="Contact band of E_q1 (m): a hand sample at distance d from the surface, outside or "
+        "inside, weighs relu(1 - |d| / band) (default: the Q1 metric's contact distance).")
+    q1_friction: float = Field(
+        0.5, ge=0.0, description="Friction coefficient of E_q1's cones (default: the Q1 metric's).")
+    q1_directions: int = Field(
+        64, ge=12, description="Fixed unit wrench directions at which E_q1 probes the hull's support (seeded by "
+        "seed_surface_points); the minimum over them stands in for the minimum over the 6-D sphere.")
+    q1_samples: int = Field(
+        64, ge=1, description="Hand samples per object that E_q1 considers: the nearest ones (bounds its cost).")
+    q1_weakest: int = Field(
+        8, ge=0, description="E_q1 also probes the hull at its q1_weakest weakest fixed directions after q1_weakest_steps "
+        "gradient steps down the smoothed support (energy.weakest_directions): random directions alone miss narrow gaps "
+        "(two opposing contacts, which resist no torque about their axis, read 0.08 with 4,096 of them).")
+    q1_weakest_steps: int = Field(15, ge=0, description="Gradient steps of each of E_q1's weakest directions.")
+    q1_search_smoothing: float = Field(
+        0.02, gt=0.0, description="Temperature of the smoothed support (log-sum-exp over the samples) that the weakest "
+        "directions descend.  Six contacts on a ball, 64 fixed directions: 0.418 with 15 smoothed steps, 0.47 with 15 "
+        "steps down the plain max, 0.408 exact (the metric with 64-edge cones).")
+    q1_search_rate: float = Field(0.5, gt=0.0, description="First step size of the weakest-direction search (on the unit sphere).")
+    q1_search_decay: float = Field(0.85, gt=0.0, le=1.0, description="Step size factor after each weakest-direction step.")
+    q1_stages: Literal["refine", "mala_refine"] = Field(
+        "refine", description="Where E_q1 acts: only in the refinement (default: it costs ~20-25 ms per object per step "
+        "at B 64 on one core) or in MALA as well.")
+    q1_temperature: float = Field(
+        0.01, gt=0.0, description="Softness of E_q1's minimum over directions (-T log mean exp(-S / T)).")
     w_contact_excess: float = Field(
         0.0, ge=0.0,
         description="Weight of the contact-distance hinge E_excess = sum_i (relu(|d_i| - h) / h)^2 "

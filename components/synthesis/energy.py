@@ -1,7 +1,8 @@
 """The multi-object DFC grasp energy (paper §"Preliminaries", Eq. multi-dfc-energy; DESIGN §5.1).
 
     E(H, O) = w_fc sum_j E_fc(x_j, O_j) + w_dist sum_j E_dist(x_j, O_j) + w_pen E_pen(H, O) + w_prior E_prior(H)
-              [+ w_sur sum_j E_sur(H, O_j) + w_align E_align + w_excess E_excess: options, off by default]
+              [+ w_sur sum_j E_sur(H, O_j) + w_q1 sum_j E_q1(H, O_j) + w_align E_align + w_excess E_excess:
+               options, off by default]
 
 H = (p, R, q) is the hand pose, O_j the posed objects of the scene and x_j the ``contacts_per_object``
 hand contact points assigned to object j (indices into ``HandModel.contact_candidates``; all distinct).
@@ -18,6 +19,7 @@ detached *diagnostics* in metres (largest contact distance, deepest sampled pene
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -196,6 +198,117 @@ def surround_energy(points: Tensor, distances: Tensor, normals: Tensor, centres:
     return ((force_sum * force_sum).sum(-1) + (torque_sum * torque_sum).sum(-1)) / (count + 1.0) ** 2
 
 
+def wrench_directions(n: int, seed: int, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> Tensor:
+    """``n`` fixed unit directions u = (u_f, u_tau) of the 6-D wrench space (Gaussian draws normalised, seeded), at
+    which :func:`q1_surrogate` probes the support of the wrench hull.  -> (n, 6)."""
+    generator = torch.Generator().manual_seed(seed)
+    u = torch.randn(n, 6, generator=generator, dtype=torch.float64)
+    return (u / u.norm(dim=-1, keepdim=True)).to(dtype=dtype, device=device)
+
+
+def wrench_support(arm: Tensor, normals: Tensor, directions: Tensor, friction: float) -> Tensor:
+    """Support s_k(u) = max over contact k's wrenches w = [f ; a_k x f] of u . w, for its circular friction cone
+    f = -n_k + mu t (|t| <= 1, t . n_k = 0):  with v = u_f + u_tau x a_k,  s_k(u) = -v.n_k + mu |v - (v.n_k) n_k|.
+    arm (B, K, 3) lever arms a_k (over the radius), normals (B, K, 3), directions (B, D, 6) -> (B, K, D)."""
+    u_force, u_torque = directions[..., :3], directions[..., 3:]  # (B, D, 3) x2
+    # v.n = u_f.n + u_tau.(a x n);  |v|^2 = |u_f|^2 + 2 a.(u_f x u_tau) + |u_tau|^2 |a|^2 - (u_tau.a)^2
+    v_n = (torch.einsum("bkc,bdc->bkd", normals, u_force)
+           + torch.einsum("bkc,bdc->bkd", torch.cross(arm, normals, dim=-1), u_torque))
+    u_t_a = torch.einsum("bkc,bdc->bkd", arm, u_torque)
+    v_sq = ((u_force * u_force).sum(-1).unsqueeze(1)
+            + 2.0 * torch.einsum("bkc,bdc->bkd", arm, torch.cross(u_force, u_torque, dim=-1))
+            + (u_torque * u_torque).sum(-1).unsqueeze(1) * (arm * arm).sum(-1, keepdim=True) - u_t_a * u_t_a)
+    return -v_n + friction * torch.sqrt(torch.relu(v_sq - v_n * v_n) + 1e-12)
+
+
+def hull_support(arm: Tensor, normals: Tensor, weight: Tensor, directions: Tensor, friction: float) -> Tensor:
+    """S(u) = max_k c_k s_k(u) over the samples with c_k > 0 (-1 where there are none).  -> (B, D)."""
+    support = weight.unsqueeze(-1) * wrench_support(arm, normals, directions, friction)  # (B, K, D)
+    return torch.where((weight > 0).unsqueeze(-1), support, support.new_tensor(-1.0)).amax(1)
+
+
+def weakest_directions(arm: Tensor, normals: Tensor, weight: Tensor, directions: Tensor, friction: float,
+                       keep: int, steps: int, smoothing: float, rate: float, decay: float) -> Tensor:
+    """The ``keep`` directions of ``directions`` (D, 6) where the hull's support S is lowest, each then moved by
+    ``steps`` projected gradient steps (step ``rate``, times ``decay`` after each) down the smoothed support
+    ``smoothing`` log sum_k exp(c_k s_k(u) / ``smoothing``) on the unit sphere (no autograd through the result):
+    the fixed directions alone miss narrow gaps of the hull (two opposing contacts, which resist no torque about
+    their axis, read 0.08 with 4,096 random directions), and steps down the unsmoothed max converge slowly.
+    -> (B, keep, 6)."""
+    with torch.enable_grad():
+        arm, normals, weight = arm.detach(), normals.detach(), weight.detach()
+        batch = arm.shape[0]
+        with torch.no_grad():
+            first = hull_support(arm, normals, weight, directions.expand(batch, -1, -1), friction)
+        u = directions[first.topk(min(keep, directions.shape[0]), dim=-1, largest=False).indices].detach()
+        touching = (weight > 0).unsqueeze(-1)
+        for _ in range(steps):
+            u = u.requires_grad_(True)
+            support = weight.unsqueeze(-1) * wrench_support(arm, normals, u, friction)
+            support = torch.where(touching, support, support.new_tensor(-1.0))
+            smooth = smoothing * torch.logsumexp(support / smoothing, dim=1)  # (B, keep)
+            (grad,) = torch.autograd.grad(smooth.sum(), u)
+            with torch.no_grad():
+                grad = grad - (grad * u).sum(-1, keepdim=True) * u
+                u = u - rate * grad
+                u = u / u.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            rate *= decay
+    return u.detach()
+
+
+def q1_surrogate(points: Tensor, distances: Tensor, normals: Tensor, centre: Tensor, radius: Tensor,
+                 directions: Tensor, band: float, friction: float, temperature: float,
+                 keep: int = 8, steps: int = 15, smoothing: float = 0.02, rate: float = 0.5,
+                 decay: float = 0.85) -> Tensor:
+    """A smooth Ferrari-Canny Q1 of one object (``w_q1``), over the hand samples h_k nearest it:
+
+        c_k = relu(1 - |d_k| / band)          (1 on the surface, 0 beyond the band -- Q1's contact distance -- or as deep)
+        x_k = h_k - d_k n_k,   a_k = (x_k - c) / r              (projected on the surface; lever arm over the radius)
+        S(u) = max_k c_k s_k(u)   (:func:`wrench_support`; samples with c_k = 0 excluded, S = -1 if none)
+        Q1~ = -T log sum_{u in U} exp(-S(u) / T)
+
+    S(u) is the support of the hull of every contact's circular friction cone of wrenches, and min_u S(u) over all
+    unit u is the radius of the largest origin-centred ball inside that hull -- the metric's Q1 (with circular
+    cones instead of its ``friction_cone_edges``-gons, and c_k shrinking the wrenches of samples near the band's
+    edges: the metric counts samples inside the object as contacts, but a surrogate that did would pay the grasp to
+    sink in; with w_q1 100 and c_k = 1 inside, PN rose 1.8 -> 3.5 mm on cube + cylinder).  U = the fixed
+    ``directions`` (D, 6) plus the ``keep`` weakest of them refined by ``steps`` gradient steps
+    (:func:`weakest_directions`); the soft minimum over U is a lower bound of min_U S, negative when the
+    origin is outside the hull (no force closure), which keeps a gradient there.  n_k is detached; the gradient
+    moves the samples onto the surface (c_k) and along it (a_k).
+    points (B, K, 3), distances (B, K), normals (B, K, 3), centre (3,), radius () -> (B,)."""
+    weight = torch.relu(1.0 - distances.abs() / band)  # (B, K)
+    surface = points - distances.unsqueeze(-1) * normals
+    arm = (surface - centre) / radius  # (B, K, 3)
+    batch = points.shape[0]
+    probes = directions.expand(batch, -1, -1)
+    if keep > 0:
+        probes = torch.cat([probes, weakest_directions(arm, normals, weight, directions, friction, keep, steps,
+                                                           smoothing, rate, decay)], dim=1)
+    hull = hull_support(arm, normals, weight, probes, friction)  # (B, D + keep)
+    return -temperature * torch.logsumexp(-hull / temperature, dim=-1)
+
+
+def q1_surrogate_energy(problem: "GraspProblem", samples: Tensor, distances: Tensor) -> Tensor:
+    """E_q1 per object (``w_q1``):  E_q1,j = relu(q1_target - Q1~_j), Q1~ of :func:`q1_surrogate` over the
+    ``q1_samples`` hand samples nearest object j's surface (E_pen's samples ``samples`` (B, M, 3) and their signed
+    distances (B, M, n_obj), differentiable within ``q1_band_m``).  -> (B, n_obj)."""
+    cfg, objects = problem.cfg, problem.objects
+    k = min(cfg.q1_samples, samples.shape[1])
+    out = []
+    for j in range(objects.n_objects):
+        nearest = torch.topk(-distances[..., j].detach().abs(), k, dim=1).indices  # (B, k) nearest the surface
+        points = torch.gather(samples, 1, nearest.unsqueeze(-1).expand(-1, -1, 3))
+        dist = torch.gather(distances[..., j], 1, nearest)
+        with torch.no_grad():
+            normals = objects.object_sdf_and_normal(j, points.detach())[1]
+        q1 = q1_surrogate(points, dist, normals, objects.positions[j], objects.radii[j], problem.q1_directions,
+                          cfg.q1_band_m, cfg.q1_friction, cfg.q1_temperature, cfg.q1_weakest, cfg.q1_weakest_steps,
+                          cfg.q1_search_smoothing, cfg.q1_search_rate, cfg.q1_search_decay)
+        out.append(torch.relu(cfg.q1_target - q1))
+    return torch.stack(out, dim=-1)
+
+
 def table_penetration(lowest_heights: Tensor, table_height: float) -> Tensor:
     """Hand below the table (DESIGN §5.1):  E_table = sum_g relu(z_table - z_g)  (m), z_g the height of the
     lowest point of hand primitive g (exact support function).   (B, G) -> (B,)."""
@@ -226,6 +339,7 @@ class GraspProblem:
     object_points: Tensor  # (n_obj, P, 3) world surface samples tested against the hand SDF
     lever_lengths: Tensor  # (n_obj,) torque normalisation of E_fc
     group_lever_length: Tensor  # () torque normalisation of the group E_fc (fc_mode='group')
+    q1_directions: Tensor  # (D, 6) wrench directions of E_q1 (``q1_directions``)
 
     @classmethod
     def build(cls, hand: HandModel, objects: SceneObjects, cfg: SynthesisConfig) -> "GraspProblem":
@@ -240,7 +354,9 @@ class GraspProblem:
         return cls(hand=hand, objects=objects, cfg=cfg,
                    hand_surface=HandSurface(hand, cfg.hand_point_spacing_m, exclude=LARGE_HAND_GEOMS),
                    object_points=objects.surface_points(cfg.object_surface_points, cfg.seed_surface_points),
-                   lever_lengths=lengths, group_lever_length=group_length)
+                   lever_lengths=lengths, group_lever_length=group_length,
+                   q1_directions=wrench_directions(cfg.q1_directions, cfg.seed_surface_points, objects.radii.dtype,
+                                                   objects.radii.device))
 
     @property
     def finger_of(self) -> Tensor:
@@ -501,14 +617,15 @@ def penetration_energy(problem: GraspProblem, p: Tensor, R: Tensor, q: Tensor,
 
 def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[float] = None,
            w_fc: Optional[float] = None, w_align: Optional[float] = None,
-           w_surround: Optional[float] = None) -> tuple[Tensor, dict]:
+           w_surround: Optional[float] = None, w_q1: Optional[float] = None) -> tuple[Tensor, dict]:
     """E(H, O) of the module docstring for flat poses x (B, 31) (:mod:`components.synthesis.pose`) and
     contacts (B, n_obj, C).  ``w_dist`` overrides ``cfg.w_dist`` (the refinement raises it), ``w_fc``
     overrides ``cfg.w_fc`` (the MALA ramp of ``w_fc_ramp_fraction``; 0 in the approach stage), ``w_align``
     overrides ``cfg.w_align`` (0 in the approach stage), ``w_surround`` overrides ``cfg.w_surround`` (0 in the
-    approach stage).
+    approach stage), ``w_q1`` overrides ``cfg.w_q1`` (0 in the approach stage).
 
-    Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior``, ``surround`` (unweighted, (B,));
+    Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior``, ``surround``, ``q1`` (unweighted,
+    (B,));
     ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
     ``pen_self``, ``pen_table`` ((B,)); diagnostics (detached, m): ``contact_distance_max``,
     ``penetration_depth_objects``, ``penetration_depth_table``, ``penetration_depth_self``,
@@ -521,6 +638,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     w_fc = cfg.w_fc if w_fc is None else w_fc
     w_align = cfg.w_align if w_align is None else w_align
     w_surround = cfg.w_surround if w_surround is None else w_surround
+    w_q1 = cfg.w_q1 if w_q1 is None else w_q1
     p, R, q_param = unpack(x)
     q = problem.effective_joints(q_param)  # (B, 22)
 
@@ -555,7 +673,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     fc_per_object, dist_per_object = torch.stack(fc, dim=-1), torch.stack(dist, dim=-1)  # (B, n_obj)
     align_per_object = torch.stack(align, dim=-1)
 
-    band = cfg.surround_band_m if w_surround > 0 else 0.0
+    band = max(cfg.surround_band_m if w_surround > 0 else 0.0, cfg.q1_band_m if w_q1 > 0 else 0.0)
     pen_terms = penetration(problem, p, R, frames, prims, band)
     pen = pen_terms.pen
     if w_surround > 0:
@@ -564,6 +682,10 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
                                    problem.lever_lengths, band).sum(-1)
     else:
         surround = torch.zeros_like(pen)
+    if w_q1 > 0:
+        q1_term = q1_surrogate_energy(problem, pen_terms.hand_samples, pen_terms.hand_distances).sum(-1)
+    else:
+        q1_term = torch.zeros_like(pen)
 
     prior = joint_limit_energy(hand, q)
     fc_total = fc_group if cfg.fc_mode == "group" else fc_per_object.sum(-1)
@@ -571,12 +693,12 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     excess_total = torch.stack(excess, dim=-1).sum(-1)
     align_total = align_per_object.sum(-1)
     total = (w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
-             + w_align * align_total + cfg.w_contact_excess * excess_total + w_surround * surround)
+             + w_align * align_total + cfg.w_contact_excess * excess_total + w_surround * surround + w_q1 * q1_term)
 
     with torch.no_grad():
         terms = {
             "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total, "excess": excess_total,
-            "surround": surround,
+            "surround": surround, "q1": q1_term,
             "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
             "pen_object_points": pen_terms.object_points, "pen_hand_points": pen_terms.hand_points,
             "pen_self": pen_terms.self_, "pen_table": pen_terms.table,
@@ -592,11 +714,11 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
 def energy_and_grad(problem: GraspProblem, x: Tensor, contacts: Tensor,
                     w_dist: Optional[float] = None, w_fc: Optional[float] = None,
                     w_align: Optional[float] = None,
-                    w_surround: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
+                    w_surround: Optional[float] = None, w_q1: Optional[float] = None) -> tuple[Tensor, Tensor, dict]:
     """Energy (B,), its gradient wrt x (B, D) and the detached terms.  Rows are independent, so the
     gradient of the batch sum is every row's own gradient."""
     with torch.enable_grad():
         x = x.detach().requires_grad_(True)
-        total, terms = energy(problem, x, contacts, w_dist, w_fc, w_align, w_surround)
+        total, terms = energy(problem, x, contacts, w_dist, w_fc, w_align, w_surround, w_q1)
         (grad,) = torch.autograd.grad(total.sum(), x)
     return total.detach(), grad, {k: v.detach() for k, v in terms.items()}

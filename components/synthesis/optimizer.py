@@ -23,7 +23,8 @@ T_0 = 8, decay 0.95, P_s = 100, P_T = 50; both periods scaled to the run length 
 reverse-move density, so this is annealed Langevin with a Metropolis energy test rather than exact MALA.
 
 :func:`refine` then runs Adam on the same energy (E_dist weighted by ``refine_w_dist``) with the
-contacts fixed, keeping each row's lowest-energy pose.
+contacts fixed, keeping each row's lowest-energy pose.  The optional smooth-Q1 term E_q1 (``w_q1``) acts in
+the refinement only, or in MALA as well (``q1_stages``); the approach stage never sees it.
 """
 
 from __future__ import annotations
@@ -156,7 +157,8 @@ class Annealer:
     def __init__(self, problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torch.Generator):
         self.problem, self.cfg, self.generator = problem, problem.cfg, generator
         self.w_fc = fc_weight_at(0, self.cfg)
-        energy, grad, terms = energy_and_grad(problem, x, contacts, w_fc=self.w_fc)
+        self.w_q1 = self.cfg.w_q1 if self.cfg.q1_stages == "mala_refine" else 0.0
+        energy, grad, terms = energy_and_grad(problem, x, contacts, w_fc=self.w_fc, w_q1=self.w_q1)
         self.state = AnnealerState(x.detach(), terms[CONTACT_INDICES], energy, grad, terms)
         self.grad_sq_ema = self._grad_sq(grad)  # (D,) or (B, D), initialised with the first gradient
         self.scale = torch.ones_like(x[0])  # (D,) per-group step multipliers
@@ -204,7 +206,8 @@ class Annealer:
             raise RuntimeError("accept_step needs a proposal: call try_step first")
         x_new, contacts_new = self._proposal
         self._proposal = None
-        energy_new, grad_new, terms_new = energy_and_grad(self.problem, x_new, contacts_new, w_fc=self.w_fc)
+        energy_new, grad_new, terms_new = energy_and_grad(self.problem, x_new, contacts_new, w_fc=self.w_fc,
+                                                          w_q1=self.w_q1)
         state = self.state
         temperature = temperature_at(self.step, self.cfg)
         alpha = torch.rand(state.energy.shape, generator=self.generator, dtype=state.energy.dtype,
@@ -234,7 +237,8 @@ class Annealer:
         self.w_fc = w_fc
         if reassign:
             state.contacts = reassign_contacts(self.problem, state.x, state.contacts, w_fc=w_fc)
-        state.energy, state.grad, state.terms = energy_and_grad(self.problem, state.x, state.contacts, w_fc=w_fc)
+        state.energy, state.grad, state.terms = energy_and_grad(self.problem, state.x, state.contacts, w_fc=w_fc,
+                                                                w_q1=self.w_q1)
         state.contacts = state.terms[CONTACT_INDICES]
 
 
@@ -267,7 +271,7 @@ def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,
              progress: Optional[ProgressFn] = None) -> tuple[Tensor, Tensor, dict]:
     """Approach stage (``approach_steps`` > 0), run before MALA: Adam (lr ``approach_lr``) on
 
-        E_approach = w_dist E_dist + w_pen E_pen + w_prior E_prior      (w_fc = w_surround = 0, w_align = approach_w_align),
+        E_approach = w_dist E_dist + w_pen E_pen + w_prior E_prior      (w_fc = w_surround = w_q1 = 0, w_align = approach_w_align),
 
     with the contacts reassigned every ``approach_reassign_every`` steps by
     :func:`~components.synthesis.energy.best_contacts` scored by distance (and alignment) only, so each
@@ -285,7 +289,7 @@ def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,
     for t in range(cfg.approach_steps):
         if every > 0 and t % every == 0:
             contacts = reassign_contacts(problem, x.detach(), contacts, **weights)
-        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, w_surround=0.0, **weights)
+        energy, grad, terms = energy_and_grad(problem, x.detach(), contacts, w_surround=0.0, w_q1=0.0, **weights)
         contacts = terms[CONTACT_INDICES]
         optimizer.zero_grad()
         x.grad = grad
