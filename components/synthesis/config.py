@@ -76,10 +76,12 @@ class SynthesisConfig(Section):
     q1_search_rate: float = Field(0.5, gt=0.0, description="First step size of the weakest-direction search (on the unit sphere).")
     q1_search_decay: float = Field(0.85, gt=0.0, le=1.0, description="Step size factor after each weakest-direction step.")
     q1_stages: Literal["refine", "mala_refine"] = Field(
-        "refine", description="Where E_q1 acts: only in the refinement (default: it costs ~20-25 ms per object per step "
-        "at B 64 on one core) or in MALA as well.")
+        "refine", description="Where E_q1 acts: only in the refinement (default) or in MALA as well.  Its cost: one "
+        "energy call with gradient took 143 ms with E_q1 against 64 ms without (cube + cylinder, B 64, one thread); "
+        "refinement-only synthesis of the bench Syn-Pl pairs took 1.4-1.8x as long per scene.")
     q1_temperature: float = Field(
-        0.01, gt=0.0, description="Softness of E_q1's minimum over directions (-T log mean exp(-S / T)).")
+        0.01, gt=0.0, description="Softness T of E_q1's minimum over directions, -T log sum_u exp(-S(u) / T) (a lower "
+        "bound of the minimum).")
     w_contact_excess: float = Field(
         0.0, ge=0.0,
         description="Weight of the contact-distance hinge E_excess = sum_i (relu(|d_i| - h) / h)^2 "

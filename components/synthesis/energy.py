@@ -227,26 +227,22 @@ def hull_support(arm: Tensor, normals: Tensor, weight: Tensor, directions: Tenso
     return torch.where((weight > 0).unsqueeze(-1), support, support.new_tensor(-1.0)).amax(1)
 
 
-def weakest_directions(arm: Tensor, normals: Tensor, weight: Tensor, directions: Tensor, friction: float,
-                       keep: int, steps: int, smoothing: float, rate: float, decay: float) -> Tensor:
-    """The ``keep`` directions of ``directions`` (D, 6) where the hull's support S is lowest, each then moved by
-    ``steps`` projected gradient steps (step ``rate``, times ``decay`` after each) down the smoothed support
+def weakest_directions(arm: Tensor, normals: Tensor, weight: Tensor, start: Tensor, friction: float,
+                       steps: int, smoothing: float, rate: float, decay: float) -> Tensor:
+    """The directions ``start`` (B, m, 6) -- the weakest of the fixed ones -- each moved by ``steps`` projected
+    gradient steps (step ``rate``, times ``decay`` after each) down the smoothed support
     ``smoothing`` log sum_k exp(c_k s_k(u) / ``smoothing``) on the unit sphere (no autograd through the result):
     the fixed directions alone miss narrow gaps of the hull (two opposing contacts, which resist no torque about
     their axis, read 0.08 with 4,096 random directions), and steps down the unsmoothed max converge slowly.
-    -> (B, keep, 6)."""
+    -> (B, m, 6)."""
     with torch.enable_grad():
-        arm, normals, weight = arm.detach(), normals.detach(), weight.detach()
-        batch = arm.shape[0]
-        with torch.no_grad():
-            first = hull_support(arm, normals, weight, directions.expand(batch, -1, -1), friction)
-        u = directions[first.topk(min(keep, directions.shape[0]), dim=-1, largest=False).indices].detach()
+        arm, normals, weight, u = arm.detach(), normals.detach(), weight.detach(), start.detach()
         touching = (weight > 0).unsqueeze(-1)
         for _ in range(steps):
             u = u.requires_grad_(True)
             support = weight.unsqueeze(-1) * wrench_support(arm, normals, u, friction)
             support = torch.where(touching, support, support.new_tensor(-1.0))
-            smooth = smoothing * torch.logsumexp(support / smoothing, dim=1)  # (B, keep)
+            smooth = smoothing * torch.logsumexp(support / smoothing, dim=1)  # (B, m)
             (grad,) = torch.autograd.grad(smooth.sum(), u)
             with torch.no_grad():
                 grad = grad - (grad * u).sum(-1, keepdim=True) * u
@@ -271,7 +267,8 @@ def q1_surrogate(points: Tensor, distances: Tensor, normals: Tensor, centre: Ten
     unit u is the radius of the largest origin-centred ball inside that hull -- the metric's Q1 (with circular
     cones instead of its ``friction_cone_edges``-gons, and c_k shrinking the wrenches of samples near the band's
     edges: the metric counts samples inside the object as contacts, but a surrogate that did would pay the grasp to
-    sink in; with w_q1 100 and c_k = 1 inside, PN rose 1.8 -> 3.5 mm on cube + cylinder).  U = the fixed
+    sink in -- on cube + cylinder, seed 0, w_q1 100, earlier versions of the term: PN 3.5 mm with c_k = 1 inside,
+    3.0 mm with this weight, 1.8 mm without the term).  U = the fixed
     ``directions`` (D, 6) plus the ``keep`` weakest of them refined by ``steps`` gradient steps
     (:func:`weakest_directions`); the soft minimum over U is a lower bound of min_U S, negative when the
     origin is outside the hull (no force closure), which keeps a gradient there.  n_k is detached; the gradient
@@ -280,12 +277,11 @@ def q1_surrogate(points: Tensor, distances: Tensor, normals: Tensor, centre: Ten
     weight = torch.relu(1.0 - distances.abs() / band)  # (B, K)
     surface = points - distances.unsqueeze(-1) * normals
     arm = (surface - centre) / radius  # (B, K, 3)
-    batch = points.shape[0]
-    probes = directions.expand(batch, -1, -1)
-    if keep > 0:
-        probes = torch.cat([probes, weakest_directions(arm, normals, weight, directions, friction, keep, steps,
-                                                           smoothing, rate, decay)], dim=1)
-    hull = hull_support(arm, normals, weight, probes, friction)  # (B, D + keep)
+    hull = hull_support(arm, normals, weight, directions.expand(points.shape[0], -1, -1), friction)  # (B, D)
+    if keep > 0:  # the weakest fixed directions, searched further (their support at the start is reused, not redone)
+        start = directions[hull.detach().topk(min(keep, directions.shape[0]), dim=-1, largest=False).indices]
+        searched = weakest_directions(arm, normals, weight, start, friction, steps, smoothing, rate, decay)
+        hull = torch.cat([hull, hull_support(arm, normals, weight, searched, friction)], dim=-1)  # (B, D + keep)
     return -temperature * torch.logsumexp(-hull / temperature, dim=-1)
 
 

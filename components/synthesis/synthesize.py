@@ -36,7 +36,7 @@ class SynthesisResult:
     ``couple_distal_joints``); ``contacts`` (B, n_obj, C): candidate indices; ``contact_regions``
     (B, n_obj, C): their region indices (``HandModel.region_names``); ``contact_points`` (B, n_obj, C, 3):
     their world positions; ``energy`` (B,): E with the MALA
-    weights; ``terms``: every term of :func:`components.synthesis.energy.energy` per row; ``accepted`` (B,);
+    weights (and w_q1 E_q1 when ``w_q1`` > 0, whatever ``q1_stages``); ``terms``: every term of :func:`components.synthesis.energy.energy` per row; ``accepted`` (B,);
     ``reasons``: per row ``"accepted"`` or the first failed filter criterion; ``stats``: timings and rates.
     """
 
