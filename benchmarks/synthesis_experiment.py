@@ -73,6 +73,8 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
                            default=0.0)) * 1000.0, 1), "device": device,
                    "threads": torch.get_num_threads(), "batch": cfg.batch_size, "seconds": round(seconds, 2),
                    "reasons": result.reason_counts(), "accept_rate": round(result.accept_rate, 4),
+                   "lineages_accepted": result.stats["lineages_accepted"],
+                   "resampled_rows": result.stats["resampled_rows"],
                    "contact_distance_max_mm": _quantiles(terms["contact_distance_max"] * 1000.0),
                    "fc_max": _quantiles(terms["fc_per_object"].amax(-1)),
                    "penetration_mm": _quantiles(terms["penetration_depth_max"] * 1000.0),

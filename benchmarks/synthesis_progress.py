@@ -5,7 +5,9 @@ Div per combination and for singles / pairs / more, from the shard tables on dis
 
 Reads every ``<stage-dir>/*/grasps.parquet`` written by a shard (the merge unit's table, which repeats the
 accepted rows, is skipped), so it can be pointed at a running or interrupted stage.  Q1 / PN are the
-shards' own (``synthesis.metrics``), Div is :func:`components.metrics.joint_diversity_deg` over the accepted q.
+shards' own (``synthesis.metrics``), Div is :func:`components.metrics.joint_diversity_deg` over the accepted q;
+``lineages`` (tables that have the column) counts the distinct MALA chains among the accepted rows, fewer than
+them when ``synthesis.optimizer.resample_at`` copied chains.
 A scene synthesised by several shards (an earlier config or code version in the same work dir) counts once, from
 the newest shard table (``superseded_rows`` says how many older rows were dropped); ``--split`` keeps some splits.
 """
@@ -21,7 +23,7 @@ from components.errors import MultigraspError
 
 COLUMNS = ["combination", "accepted", "reason", "q1", "pn_mm", "q"]
 #: Read too where the table has them: the split filter and the one-row-per-candidate rule use them.
-OPTIONAL_COLUMNS = ["split", "scene_id", "row"]
+OPTIONAL_COLUMNS = ["split", "scene_id", "row", "lineage"]
 GROUPS = {1: "singles", 2: "pairs"}
 
 
@@ -41,6 +43,8 @@ def quality_summary(frame) -> dict:
         out.update(q1=round(float(accepted.q1.mean()), 4), q1_positive=round(float((accepted.q1 > 0).mean()), 4),
                    pn_mm=round(float(accepted.pn_mm.mean()), 3),
                    div_deg=round(joint_diversity_deg(torch.as_tensor(np.stack(accepted.q.to_numpy()))), 2))
+        if {"scene_id", "lineage"} <= set(accepted.columns):  # tables since resample_at: distinct chains accepted
+            out["lineages"] = int(len(accepted[["scene_id", "lineage"]].drop_duplicates()))
     return out
 
 

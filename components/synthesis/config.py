@@ -242,6 +242,22 @@ class SynthesisConfig(Section):
     step_scale_translation: float = Field(1.0, gt=0.0, description="Step multiplier of the palm position p (m).")
     step_scale_rotation: float = Field(1.0, gt=0.0, description="Step multiplier of the 6-D rotation parameters.")
     step_scale_joints: float = Field(1.0, gt=0.0, description="Step multiplier of the joint angles (rad).")
+    resample_at: list[float] = Field(
+        default_factory=list,
+        description="Population resampling (not in the paper; off when empty): after these fractions of the MALA chain "
+        "(each in (0, 1), e.g. [0.5]) the resample_fraction worst candidates, ranked by resample score, continue from "
+        "copies of the best ones (optimizer.resample_sources), so the rest of the chain is spent on the basins that "
+        "are closest to acceptance; the remaining MALA steps' noise makes the copies diverge.  Trades diversity "
+        "(Div, distinct lineages: SynthesisResult.stats['lineages_accepted']) for accept rate and quality.")
+    resample_fraction: float = Field(
+        0.5, gt=0.0, lt=1.0,
+        description="Share of the batch replaced at each resampling; each survivor is copied at most "
+        "ceil(f / (1 - f)) times (once at 0.5), best first.")
+    resample_w_q1: float = Field(
+        0.0, ge=0.0,
+        description="Resample score = the chain's energy E (MALA weights) + resample_w_q1 * sum_j relu(q1_target - "
+        "Q1~_j) (the smooth Q1 of w_q1, computed only at the resampling steps, so it costs a few energy calls, "
+        "not one per step); 0 ranks by E alone.")
 
     # ------------------------------------------------------------------ approach stage (before MALA)
     approach_steps: int = Field(
@@ -334,6 +350,10 @@ class SynthesisConfig(Section):
     def _ranges(self) -> "SynthesisConfig":
         if self.init_distance_max_m < self.init_distance_min_m:
             raise ValueError("init_distance_max_m must be >= init_distance_min_m")
+        bad = [f for f in self.resample_at if not 0.0 < f < 1.0]
+        if bad:
+            raise ValueError(f"resample_at: every fraction must lie in (0, 1) (a copy made at the end of MALA would "
+                             f"be refined into a duplicate); got {bad}")
         return self
 
     def schedule_periods(self) -> tuple[int, int]:

@@ -25,6 +25,11 @@ reverse-move density, so this is annealed Langevin with a Metropolis energy test
 :func:`refine` then runs Adam on the same energy (E_dist weighted by ``refine_w_dist``) with the
 contacts fixed, keeping each row's lowest-energy pose.  The optional smooth-Q1 term E_q1 (``w_q1``) acts in
 the refinement only, or in MALA as well (``q1_stages``); the approach stage never sees it.
+
+Optional population resampling (``resample_at``, not in the paper): at the given fractions of the MALA chain the
+``resample_fraction`` worst rows by score (E, plus ``resample_w_q1`` times the smooth-Q1 hinge) restart from
+copies of the best rows (:func:`resample_sources`, :meth:`Annealer.resample`); ``AnnealerState.ancestor`` keeps
+each row's original index, so the number of distinct lineages among the accepted grasps can be reported.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import torch
 from torch import Tensor
 
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import CONTACT_INDICES, GraspProblem, best_contacts, energy_and_grad
+from components.synthesis.energy import CONTACT_INDICES, GraspProblem, best_contacts, energy, energy_and_grad
 from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION, unpack
 
 #: progress(step, total, info): called every ``progress_every`` steps with a dict of scalars
@@ -140,15 +145,38 @@ def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, g
     return flat.reshape(contacts.shape)
 
 
+def resample_sources(score: Tensor, fraction: float) -> Tensor:
+    """Elitist resampling of a population of B rows ranked by ``score`` (B,), lower is better (non-finite last):
+    the k = floor(``fraction`` B) worst rows take the state of the best survivors, the best first and each survivor
+    at most ceil(k / (B - k)) times; every other row keeps its own.  -> source (B,) long: row b continues from
+    row source[b]."""
+    n = score.shape[0]
+    k = min(int(fraction * n), n - 1)
+    source = torch.arange(n, device=score.device)
+    if k <= 0:
+        return source
+    ranked = torch.where(torch.isfinite(score), score, torch.full_like(score, float("inf")))
+    order = torch.argsort(ranked, stable=True)  # best first
+    survivors, replaced = order[: n - k], order[n - k:]
+    source[replaced] = survivors[torch.arange(k, device=score.device) % (n - k)]
+    return source
+
+
 @dataclass
 class AnnealerState:
-    """The chain of every row: pose x (B, D), contacts (B, n_obj, C), energy (B,), gradient (B, D), terms."""
+    """The chain of every row: pose x (B, D), contacts (B, n_obj, C), energy (B,), gradient (B, D), terms, and
+    ancestor (B,): the index of the row each chain descends from (itself unless resampled)."""
 
     x: Tensor
     contacts: Tensor
     energy: Tensor
     grad: Tensor
     terms: dict
+    ancestor: Optional[Tensor] = None
+
+    def __post_init__(self) -> None:
+        if self.ancestor is None:
+            self.ancestor = torch.arange(self.x.shape[0], device=self.x.device)
 
 
 class Annealer:
@@ -225,6 +253,27 @@ class Annealer:
         self._between_steps()
         return accept
 
+    def resample_score(self) -> Tensor:
+        """Score of every row for :meth:`resample` (lower is better): E + ``resample_w_q1`` sum_j relu(q1_target -
+        Q1~_j), the smooth-Q1 hinge computed here (no gradient) when ``resample_w_q1`` > 0.  -> (B,)."""
+        score = self.state.energy
+        if self.cfg.resample_w_q1 > 0:
+            with torch.no_grad():
+                _, terms = energy(self.problem, self.state.x, self.state.contacts, w_fc=self.w_fc, w_q1=1.0)
+            score = score + self.cfg.resample_w_q1 * terms["q1"]
+        return score
+
+    def resample(self, source: Tensor) -> None:
+        """Row b continues from row source[b]'s state (pose, contacts, energy, gradient, terms, ancestor and, per
+        row, the squared-gradient EMA); see :func:`resample_sources`."""
+        state = self.state
+        state.x, state.contacts = state.x[source], state.contacts[source]
+        state.energy, state.grad = state.energy[source], state.grad[source]
+        state.terms = {k: v[source] for k, v in state.terms.items()}
+        state.ancestor = state.ancestor[source]
+        if self.grad_sq_ema.dim() == 2:
+            self.grad_sq_ema = self.grad_sq_ema[source]
+
     def _between_steps(self) -> None:
         """Schedule changes after step t: a new E_fc weight level (``w_fc_ramp_fraction``) and the periodic
         contact reassignment (``contact_reassign_every``); either re-evaluates the state's energy and gradient."""
@@ -254,17 +303,29 @@ def run_mala(problem: GraspProblem, x: Tensor, contacts: Tensor, generator: torc
     """``cfg.mala_steps`` annealer steps from (x, contacts).  -> (final state, stats: mean accept rate, seconds)."""
     cfg = problem.cfg
     annealer = Annealer(problem, x, contacts, generator)
-    start, accepted = time.perf_counter(), 0.0
+    resample_steps = resample_steps_of(cfg)
+    start, accepted, replaced = time.perf_counter(), 0.0, 0
     for t in range(cfg.mala_steps):
         annealer.try_step()
         accept = annealer.accept_step()
         accepted += float(accept.float().mean())
+        if t + 1 in resample_steps:
+            source = resample_sources(annealer.resample_score(), cfg.resample_fraction)
+            annealer.resample(source)
+            replaced += int((source != torch.arange(source.shape[0], device=source.device)).sum())
         _report(progress, cfg, t + 1, cfg.mala_steps, start,
                 {"stage": "mala", "energy_mean": float(annealer.state.energy.mean()),
                  "accept_rate": float(accept.float().mean()), "step_size": step_size_at(t, cfg),
                  "temperature": temperature_at(t, cfg)})
-    stats = {"mala_accept_rate": accepted / max(cfg.mala_steps, 1), "mala_seconds": time.perf_counter() - start}
+    stats = {"mala_accept_rate": accepted / max(cfg.mala_steps, 1), "mala_seconds": time.perf_counter() - start,
+             "resampled_rows": replaced}
     return annealer.state, stats
+
+
+def resample_steps_of(cfg: SynthesisConfig) -> set[int]:
+    """The MALA steps after which :func:`run_mala` resamples: round(f * mala_steps) for f in ``resample_at``,
+    kept when strictly inside the chain (1 .. mala_steps - 1)."""
+    return {s for s in (round(f * cfg.mala_steps) for f in cfg.resample_at) if 0 < s < cfg.mala_steps}
 
 
 def approach(problem: GraspProblem, x: Tensor, contacts: Tensor,

@@ -37,7 +37,8 @@ class SynthesisResult:
     (B, n_obj, C): their region indices (``HandModel.region_names``); ``contact_points`` (B, n_obj, C, 3):
     their world positions; ``energy`` (B,): E with the MALA
     weights (and w_q1 E_q1 when ``w_q1`` > 0, whatever ``q1_stages``); ``terms``: every term of :func:`components.synthesis.energy.energy` per row; ``accepted`` (B,);
-    ``reasons``: per row ``"accepted"`` or the first failed filter criterion; ``stats``: timings and rates.
+    ``reasons``: per row ``"accepted"`` or the first failed filter criterion; ``stats``: timings and rates;
+    ``lineage`` (B,): the candidate each row's chain descends from (its own index unless ``resample_at`` copied it).
     """
 
     scene: Scene
@@ -53,6 +54,7 @@ class SynthesisResult:
     accepted: Tensor
     reasons: list[str]
     stats: dict = field(default_factory=dict)
+    lineage: Optional[Tensor] = None
 
     @property
     def accept_rate(self) -> float:
@@ -67,6 +69,8 @@ class SynthesisResult:
                   for k in ("p", "R", "q", "contacts", "contact_regions", "contact_points", "energy", "accepted")}
         arrays.update({f"term_{k}": v.detach().cpu().numpy() for k, v in self.terms.items()})
         arrays["reasons"] = np.array(self.reasons)
+        if self.lineage is not None:
+            arrays["lineage"] = self.lineage.detach().cpu().numpy()
         return arrays
 
 
@@ -95,8 +99,10 @@ def synthesize(hand: HandModel, library: ObjectLibrary, scene: Scene, cfg: Synth
     p, R, q = unpack(x)
     q = problem.effective_joints(q)
     stats = {**approach_stats, **mala_stats, **refine_stats, "seconds": time.perf_counter() - start,
-             "accept_rate": float(accepted.float().mean())}
+             "accept_rate": float(accepted.float().mean()),
+             # distinct chains among the accepted rows (equals their number unless resample_at copied rows)
+             "lineages_accepted": int(state.ancestor[accepted].unique().numel())}
     return SynthesisResult(scene=scene, object_names=list(objects.names), p=p, R=R, q=q, contacts=contacts,
                            contact_regions=hand.contact_region_of[contacts], contact_points=contact_points,
                            energy=energy, terms=terms,
-                           accepted=accepted, reasons=reasons, stats=stats)
+                           accepted=accepted, reasons=reasons, stats=stats, lineage=state.ancestor)
