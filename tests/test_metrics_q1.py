@@ -186,3 +186,53 @@ def test_group_q1_of_a_sphere_grasp_split_between_two_objects_is_the_whole_grasp
     whole = q1_single_object(x, AXES, np.zeros(3), RADIUS, cfg)
     assert whole > 0.0
     assert q1_group(halves, np.zeros(3), RADIUS, cfg) == pytest.approx(whole, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- the exact solver over every contact
+
+
+def _sphere_contacts(n: int, seed: int, upper_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    normals = np.random.default_rng(seed).normal(size=(n, 3))
+    if upper_only:  # within ~20 degrees of +z: every cone of friction 0.5 (26.6 degrees) pushes down
+        normals[:, 2] = np.abs(normals[:, 2]) + 3.0
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return RADIUS * normals, normals
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_constraint_generation_finds_the_hull_of_every_wrench_from_a_small_start(seed):
+    from components.metrics.q1 import q1_constraint_generation
+
+    points, normals = _sphere_contacts(40, seed)
+    wrenches = primitive_wrenches(points, normals, np.zeros(3), RADIUS, 0.5, 8)  # 320 wrenches: qhull takes them all
+    whole = q1_from_wrenches(wrenches, RANK_TOL)
+    exact, rounds = q1_constraint_generation(wrenches, np.arange(4 * 8), RANK_TOL, rounds=100, facets=16)
+    assert whole > 0.0 and exact == pytest.approx(whole, abs=1e-9)
+    assert 1 < rounds < 100  # it had to grow the start, and stopped before the fallback
+    # a start that holds every wrench stops in one round
+    assert q1_constraint_generation(wrenches, np.arange(len(wrenches)), RANK_TOL, 100, 16) == (pytest.approx(whole), 1)
+
+
+def test_constraint_generation_reports_no_closure_as_zero():
+    from components.metrics.q1 import q1_constraint_generation
+
+    points, normals = _sphere_contacts(30, 3, upper_only=True)  # every force pushes down
+    wrenches = primitive_wrenches(points, normals, np.zeros(3), RADIUS, 0.5, 8)
+    assert q1_constraint_generation(wrenches, np.arange(4 * 8), RANK_TOL, 100, 16)[0] == 0.0
+
+
+def test_the_exact_solver_reads_every_contact_and_the_cap_a_lower_bound():
+    points, normals = _sphere_contacts(60, 4)
+    exact = q1_single_object(points, normals, np.zeros(3), RADIUS, MetricsConfig(q1_solver="exact", q1_exact_start=6))
+    whole = q1_from_wrenches(primitive_wrenches(points, normals, np.zeros(3), RADIUS, 0.5, 8), RANK_TOL)
+    assert exact == pytest.approx(whole, abs=1e-9)
+    from components.metrics.q1 import object_contacts
+
+    distances = np.zeros(len(points))  # every sample on the surface: all are contacts
+    for cap in (6, 24):
+        cfg = MetricsConfig(q1_solver="capped", q1_max_contacts=cap)
+        subset, subset_normals = object_contacts(distances, points, normals, cfg)
+        assert len(subset) == cap
+        assert q1_single_object(subset, subset_normals, np.zeros(3), RADIUS, cfg) <= exact + 1e-12
+    every, _ = object_contacts(distances, points, normals, MetricsConfig(q1_solver="exact", q1_exact_start=6))
+    assert len(every) == 60

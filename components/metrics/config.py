@@ -23,8 +23,26 @@ class MetricsConfig(Section):
         0.004, gt=0.0, description="Q1: spacing of the samples on the hand's collision geometry that are tested as contacts.")
     q1_max_contacts: int = Field(
         32, ge=1,
-        description="Q1: at most this many contacts per object (farthest-point subset of the samples in contact), which bounds "
-        "the 6-D convex hull to max_contacts x edges wrenches; neighbouring samples add nearly identical wrenches.")
+        description="Q1 with q1_solver='capped': at most this many contacts per object (farthest-point subset of the samples in "
+        "contact), which bounds the 6-D convex hull to max_contacts x edges wrenches (and reads Q1 low: README 'Q1 "
+        "depends on its constants').")
+    q1_solver: Literal["capped", "exact"] = Field(
+        "exact",
+        description="Q1: 'capped' = the hull of the q1_max_contacts farthest-point contacts only (a lower bound of Q1). "
+        "'exact' = Q1 of every contact, by constraint generation (q1.q1_constraint_generation): the hull of a subset, "
+        "grown by the wrenches beyond its nearest facets until that facet supports every wrench.")
+    q1_exact_start: int = Field(
+        8, ge=1,
+        description="Q1 'exact': contacts (farthest-point subset) whose cone edges start the constraint generation.  The "
+        "value does not change Q1, only its cost: on 40 bench pair grasps 0.18 / 0.41 / 0.95 s per grasp from 8 / 16 / "
+        "32 contacts (capped at 32: 0.27 s).")
+    q1_exact_rounds: int = Field(
+        50, ge=1,
+        description="Q1 'exact': rounds of constraint generation before the hull of every wrench is taken instead.")
+    q1_exact_facets: int = Field(
+        16, ge=1,
+        description="Q1 'exact': the nearest facets of the subset's hull whose most violating wrench joins the subset "
+        "each round (more: fewer, larger rounds).")
     q1_contact_mode: Literal["dense", "per_link"] = Field(
         "dense",
         description="Q1: which hand samples within contact_distance_m are contacts. 'dense' (this project): all of them "

@@ -5,8 +5,9 @@ Definition used here, for one object O with centre of mass c and radius r (``Obj
 * **Contacts**: the samples of the hand's *collision geometry* (capsules, boxes, forearm cylinder;
   :class:`components.synthesis.HandSurface`, spacing ``q1_hand_point_spacing_m``) whose signed distance to O
   is below ``contact_distance_m`` (5 mm; samples inside O count).  Each is projected onto the surface,
-  x = h - d_O(h) n(h), with n the outward unit normal (SDF gradient).  At most ``q1_max_contacts``
-  (farthest-point subset, starting from the closest sample).  The hand's contact candidates are *not*
+  x = h - d_O(h) n(h), with n the outward unit normal (SDF gradient).  With ``q1_solver='exact'`` all of
+  them; with ``'capped'`` at most ``q1_max_contacts`` (farthest-point subset, starting from the closest
+  sample), a lower bound of Q1 (the subset's hull lies inside the full one).  The hand's contact candidates are *not*
   used: any part of the hand that touches the object can push it.
   With ``q1_contact_mode='per_link'`` each hand link contributes at most one contact instead: its sample
   nearest O, if within ``contact_distance_m`` (the DexGraspNet / UniDexGrasp evaluation convention).
@@ -18,6 +19,11 @@ Definition used here, for one object O with centre of mass c and radius r (``Obj
   wrenches = min over the facets of W of their distance to the origin (scipy / qhull, 6-D).  Q1 = 0 when
   there are no contacts, when the wrenches are rank-deficient (they cannot span the 6-D wrench space,
   e.g. one or two point contacts) or when the origin is not strictly inside W (no force closure).
+  With every contact (``'exact'``) the hull has thousands of 6-D points, too many for qhull to take whole;
+  :func:`q1_constraint_generation` gets the same value from the hull of a subset (first the farthest-point
+  contacts' wrenches), adding the wrenches that lie beyond its nearest facets until the nearest facet has
+  none beyond it: that facet then supports the hull of every wrench, so its distance is Q1 (the subset's
+  hull lies inside the full one, so Q1 cannot be smaller).
 * **Multi-object Q1** = min over the scene's objects.
 * **Group Q1** (``q1_grasps(group=True)``, for grasps synthesised with ``fc_mode='group'``): the objects as one
   rigid body -- every object's contacts together, torques about the objects' centroid normalised by the
@@ -75,26 +81,71 @@ def q1_from_wrenches(wrenches: np.ndarray, rank_tolerance: float) -> float:
     singular = np.linalg.svd(wrenches, compute_uv=False)
     if singular[-1] <= rank_tolerance * singular[0]:
         return 0.0
-    hull = None
-    for options in QHULL_OPTIONS:
-        try:
-            hull = ConvexHull(wrenches, qhull_options=options)
-            break
-        except QhullError:
-            continue
+    hull = _hull(wrenches)
     if hull is None:
         return 0.0
     # qhull facets: unit normal . x + offset <= 0 inside; the origin's distance to a facet is -offset
     return max(0.0, float(np.min(-hull.equations[:, -1])))
 
 
+def _hull(wrenches: np.ndarray) -> ConvexHull | None:
+    """qhull of the wrenches with the :data:`QHULL_OPTIONS` fallbacks; None if every attempt fails."""
+    for options in QHULL_OPTIONS:
+        try:
+            return ConvexHull(wrenches, qhull_options=options)
+        except QhullError:
+            continue
+    return None
+
+
+#: A wrench counts as beyond a facet when it lies more than this (wrench units, O(1)) outside it: well above
+#: qhull's round-off and the ~1e-11 joggle of 'QJ', well below any Q1 that matters.
+BEYOND_TOLERANCE = 1e-9
+
+
+def q1_constraint_generation(wrenches: np.ndarray, start: np.ndarray, rank_tolerance: float, rounds: int,
+                             facets: int) -> tuple[float, int]:
+    """Q1 of the hull of every wrench (M, 6) from hulls of subsets (module docstring), starting from the rows
+    ``start`` (indices).  Each round: hull of the subset S; its facets (unit normal n, offset b: n . w + b <= 0
+    inside) sorted by their distance -b to the origin; for the ``facets`` nearest, the wrench farthest beyond
+    each joins S.  Stops when the nearest facet has no wrench beyond it (``BEYOND_TOLERANCE``): then
+    Q1 = max(0, -b) -- the facet supports the full hull, and hull(S) lies inside it.  After ``rounds`` rounds
+    (or if a subset's hull fails) the full hull is taken.  -> (Q1, rounds used)."""
+    if len(wrenches) <= WRENCH_DIM:
+        return 0.0, 0
+    singular = np.linalg.svd(wrenches, compute_uv=False)
+    if singular[-1] <= rank_tolerance * singular[0]:
+        return 0.0, 0
+    chosen = np.zeros(len(wrenches), dtype=bool)
+    chosen[start] = True
+    for used in range(1, rounds + 1):
+        hull = _hull(wrenches[chosen]) if chosen.sum() > WRENCH_DIM else None
+        if hull is None:
+            break
+        distance = -hull.equations[:, -1]
+        nearest = np.argsort(distance)[:facets]
+        beyond = wrenches @ hull.equations[nearest, :-1].T + hull.equations[nearest, -1]  # (M, k)
+        worst = beyond.argmax(0)
+        if beyond[worst[0], 0] <= BEYOND_TOLERANCE:
+            return max(0.0, float(distance[nearest[0]])), used
+        new = worst[beyond[worst, np.arange(len(nearest))] > BEYOND_TOLERANCE]
+        chosen[new] = True
+    return q1_from_wrenches(wrenches, rank_tolerance), rounds
+
+
 def q1_single_object(points: np.ndarray, normals: np.ndarray, centre: np.ndarray, radius: float,
                      cfg: MetricsConfig) -> float:
-    """Q1 of one object from its contact points and outward unit normals (C, 3) (module docstring)."""
+    """Q1 of one object from its contact points and outward unit normals (C, 3) (module docstring).  With
+    ``q1_solver='exact'`` and more than ``q1_exact_start`` contacts, the first ``q1_exact_start`` of them (the
+    farthest-point subset :func:`object_contacts` puts first) start :func:`q1_constraint_generation`."""
     if len(points) == 0:
         return 0.0
     wrenches = primitive_wrenches(points, normals, centre, radius, cfg.friction_coefficient, cfg.friction_cone_edges,
                                   cfg.q1_torque_scale_per_m)
+    if cfg.q1_solver == "exact" and len(points) > cfg.q1_exact_start:
+        start = np.arange(cfg.q1_exact_start * cfg.friction_cone_edges)  # the starting contacts' cone edges
+        return q1_constraint_generation(wrenches, start, cfg.q1_rank_tolerance, cfg.q1_exact_rounds,
+                                        cfg.q1_exact_facets)[0]
     return q1_from_wrenches(wrenches, cfg.q1_rank_tolerance)
 
 
@@ -118,7 +169,8 @@ def nearest_per_link(distances: np.ndarray, links: np.ndarray, candidates: np.nd
 def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarray,
                     cfg: MetricsConfig, links: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The contacts of one grasp on one object: hand samples with d < ``contact_distance_m`` projected onto
-    the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample), or with
+    the surface, at most ``q1_max_contacts`` of them (farthest-point subset from the closest sample) with
+    ``q1_solver='capped'``, all of them with the subset first with ``'exact'``, or with
     ``q1_contact_mode='per_link'`` the nearest such sample of each link (``links``: link index per sample).
     Samples whose SDF normal is undefined (norm <= 0.5) are skipped; the others are renormalised.
     distances (M,), points, normals (M, 3) -> (contact points (C, 3), normals (C, 3))."""
@@ -133,8 +185,11 @@ def object_contacts(distances: np.ndarray, points: np.ndarray, normals: np.ndarr
         touching = nearest_per_link(distances, links, touching)
     normal = normals[touching] / norms[touching, None]
     surface = points[touching] - distances[touching, None] * normal
-    if len(touching) > cfg.q1_max_contacts:
-        chosen = farthest_point_indices(surface, cfg.q1_max_contacts, int(np.argmin(np.abs(distances[touching]))))
+    subset = cfg.q1_exact_start if cfg.q1_solver == "exact" else cfg.q1_max_contacts
+    if len(touching) > subset:
+        chosen = farthest_point_indices(surface, subset, int(np.argmin(np.abs(distances[touching]))))
+        if cfg.q1_solver == "exact":  # every contact, the starting subset first
+            chosen = np.concatenate([chosen, np.setdiff1d(np.arange(len(surface)), chosen)])
         surface, normal = surface[chosen], normal[chosen]
     return surface, normal
 
