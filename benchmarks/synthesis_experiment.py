@@ -39,6 +39,29 @@ def effective_optimizer(synthesis, n_objects: int, sets: list[str]):
         update={key: getattr(synthesis.optimizer, key) for key in explicit})
 
 
+def sibling_spread(result) -> dict:
+    """Median mean-|dq| (deg) and palm distance (mm) between accepted rows of the same lineage (copies made by
+    ``resample_at``) and between accepted rows of different lineages; None where there are no such pairs."""
+    accepted = result.accepted.nonzero().flatten()
+    q, p, lineage = result.q[accepted].double(), result.p[accepted].double(), result.lineage[accepted]
+    joint = torch_deg((q.unsqueeze(0) - q.unsqueeze(1)).abs().mean(-1))
+    palm = (p.unsqueeze(0) - p.unsqueeze(1)).norm(dim=-1) * 1000.0
+    upper = np.triu(np.ones((len(accepted), len(accepted)), dtype=bool), k=1)
+    same = (lineage.unsqueeze(0) == lineage.unsqueeze(1)).cpu().numpy() & upper
+    other = ~same & upper
+    out = {}
+    for name, mask in (("siblings", same), ("others", other)):
+        out[f"{name}_joint_diff_deg_median"] = round(float(np.median(joint.cpu().numpy()[mask])), 3) if mask.any() else None
+        out[f"{name}_palm_mm_median"] = round(float(np.median(palm.cpu().numpy()[mask])), 2) if mask.any() else None
+    return out
+
+
+def torch_deg(x):
+    import math
+
+    return x * (180.0 / math.pi)
+
+
 def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str = "bench", device: str = "cpu",
                    threads: int = 0, scene_sets: tuple[str, ...] = ()) -> dict:
     """Synthesise one scene with the profile's optimiser for that many objects (``optimizer_for``: the
@@ -75,6 +98,7 @@ def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str 
                    "reasons": result.reason_counts(), "accept_rate": round(result.accept_rate, 4),
                    "lineages_accepted": result.stats["lineages_accepted"],
                    "resampled_rows": result.stats["resampled_rows"],
+                   **sibling_spread(result),
                    "contact_distance_max_mm": _quantiles(terms["contact_distance_max"] * 1000.0),
                    "fc_max": _quantiles(terms["fc_per_object"].amax(-1)),
                    "penetration_mm": _quantiles(terms["penetration_depth_max"] * 1000.0),

@@ -109,3 +109,24 @@ def test_a_bad_resample_fraction_from_the_cli_is_one_line(tmp_path):
 
     with pytest.raises(MultigraspError, match="resample_at"):
         load_config("smoke", sets=["synthesis.optimizer.resample_at=[1.0]"])
+
+
+def test_jitter_moves_only_the_copies_and_keeps_their_energy_current(hand, library):
+    from components.synthesis import energy_and_grad
+    from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION
+
+    cfg = SynthesisConfig(batch_size=6, resample_jitter_translation_m=0.004, resample_jitter_joints_rad=0.05)
+    problem = GraspProblem.build(hand, SceneObjects(library, SPHERE), cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    annealer = Annealer(problem, x, contacts, torch.Generator().manual_seed(1))
+    before = annealer.state.x.clone()
+    source = resample_sources(annealer.state.energy, 0.5)
+    annealer.resample(source)
+    moved = annealer.state.x - before[source]
+    copies = source != torch.arange(6)
+    assert torch.all(moved[~copies] == 0)
+    assert torch.all(moved[copies][:, TRANSLATION].abs().amax(-1) > 0)
+    assert torch.all(moved[copies][:, JOINTS].abs().amax(-1) > 0)
+    assert torch.all(moved[:, ROTATION] == 0)
+    energy, _, _ = energy_and_grad(problem, annealer.state.x, annealer.state.contacts)
+    assert torch.allclose(annealer.state.energy, energy)

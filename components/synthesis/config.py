@@ -253,6 +253,13 @@ class SynthesisConfig(Section):
         0.5, gt=0.0, lt=1.0,
         description="Share of the batch replaced at each resampling; each survivor is copied at most "
         "ceil(f / (1 - f)) times (once at 0.5), best first.")
+    resample_jitter_translation_m: float = Field(
+        0.0, ge=0.0,
+        description="Standard deviation (m) of Gaussian noise added to the palm position of every copy made by resample_at, "
+        "so that copies leave their source's basin (without it, siblings ended 0.4 mm / 0.3 deg apart: README "
+        "'Population resampling').")
+    resample_jitter_joints_rad: float = Field(
+        0.0, ge=0.0, description="Standard deviation (rad) of Gaussian noise added to the joint angles of every copy (see above).")
     resample_w_q1: float = Field(
         0.0, ge=0.0,
         description="Resample score = the chain's energy E (MALA weights) + resample_w_q1 * sum_j relu(q1_target - "

@@ -265,14 +265,27 @@ class Annealer:
 
     def resample(self, source: Tensor) -> None:
         """Row b continues from row source[b]'s state (pose, contacts, energy, gradient, terms, ancestor and, per
-        row, the squared-gradient EMA); see :func:`resample_sources`."""
-        state = self.state
+        row, the squared-gradient EMA); see :func:`resample_sources`.  The copies' palm positions and joint
+        angles then get Gaussian noise of ``resample_jitter_translation_m`` / ``resample_jitter_joints_rad``
+        (their energy, gradient and terms recomputed)."""
+        cfg, state = self.cfg, self.state
         state.x, state.contacts = state.x[source], state.contacts[source]
         state.energy, state.grad = state.energy[source], state.grad[source]
         state.terms = {k: v[source] for k, v in state.terms.items()}
         state.ancestor = state.ancestor[source]
         if self.grad_sq_ema.dim() == 2:
             self.grad_sq_ema = self.grad_sq_ema[source]
+        if cfg.resample_jitter_translation_m <= 0 and cfg.resample_jitter_joints_rad <= 0:
+            return
+        copies = (source != torch.arange(source.shape[0], device=source.device)).unsqueeze(-1)  # (B, 1)
+        noise = torch.randn(state.x.shape, generator=self.generator, dtype=state.x.dtype,
+                            device=self.generator.device).to(state.x.device)
+        scale = torch.zeros_like(state.x[0])
+        scale[TRANSLATION], scale[JOINTS] = cfg.resample_jitter_translation_m, cfg.resample_jitter_joints_rad
+        state.x = state.x + copies * scale * noise
+        state.energy, state.grad, state.terms = energy_and_grad(self.problem, state.x, state.contacts, w_fc=self.w_fc,
+                                                                w_q1=self.w_q1)
+        state.contacts = state.terms[CONTACT_INDICES]
 
     def _between_steps(self) -> None:
         """Schedule changes after step t: a new E_fc weight level (``w_fc_ramp_fraction``) and the periodic
