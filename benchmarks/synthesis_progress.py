@@ -7,7 +7,8 @@ Reads every ``<stage-dir>/*/grasps.parquet`` written by a shard (the merge unit'
 accepted rows, is skipped), so it can be pointed at a running or interrupted stage.  Q1 / PN are the
 shards' own (``synthesis.metrics``), Div is :func:`components.metrics.joint_diversity_deg` over the accepted q;
 ``lineages`` (tables that have the column) counts the distinct MALA chains among the accepted rows, fewer than
-them when ``synthesis.optimizer.resample_at`` copied chains.
+them when ``synthesis.optimizer.resample_at`` copied chains, and ``siblings_joint_diff_deg_median`` says how far
+apart two accepted copies of one chain ended (``others_...``: two rows of different chains of one scene).
 A scene synthesised by several shards (an earlier config or code version in the same work dir) counts once, from
 the newest shard table (``superseded_rows`` says how many older rows were dropped); ``--split`` keeps some splits.
 """
@@ -45,7 +46,28 @@ def quality_summary(frame) -> dict:
                    div_deg=round(joint_diversity_deg(torch.as_tensor(np.stack(accepted.q.to_numpy()))), 2))
         if {"scene_id", "lineage"} <= set(accepted.columns):  # tables since resample_at: distinct chains accepted
             out["lineages"] = int(len(accepted[["scene_id", "lineage"]].drop_duplicates()))
+            out.update(sibling_spread(accepted))
     return out
+
+
+def sibling_spread(accepted) -> dict:
+    """Median mean-|dq| (deg) between two accepted rows of one scene that share a lineage (copies made by
+    ``resample_at``), and between two of one scene that do not; None where there is no such pair."""
+    import numpy as np
+
+    same, other = [], []
+    for _, scene in accepted.groupby("scene_id"):
+        q = np.degrees(np.stack(scene.q.to_numpy()))
+        lineage = scene.lineage.to_numpy()
+        upper = np.triu(np.ones((len(scene), len(scene)), dtype=bool), k=1)
+        diff = np.abs(q[:, None, :] - q[None, :, :]).mean(-1)
+        sibling = lineage[:, None] == lineage[None, :]
+        same.append(diff[upper & sibling])
+        other.append(diff[upper & ~sibling])
+    same, other = np.concatenate(same), np.concatenate(other)
+    return {"sibling_pairs": int(len(same)),
+            "siblings_joint_diff_deg_median": round(float(np.median(same)), 3) if len(same) else None,
+            "others_joint_diff_deg_median": round(float(np.median(other)), 3) if len(other) else None}
 
 
 def shard_tables(stage_dir: Path) -> list[Path]:

@@ -59,3 +59,20 @@ def test_split_filter_and_newest_table_per_candidate(tmp_path):
     assert (result["groups"]["pairs"]["accepted"], result["groups"]["pairs"]["candidates"]) == (2, 2)
     assert main(["--stage-dir", str(stage), "--json", str(out)]) == 0
     assert json.loads(out.read_text())["groups"]["pairs"]["candidates"] == 4
+
+
+def test_sibling_spread_separates_copies_of_one_chain_from_other_chains():
+    import numpy as np
+    import pandas as pd
+
+    from benchmarks.synthesis_progress import quality_summary
+
+    q = [np.zeros(22), np.full(22, np.radians(1.0)), np.full(22, np.radians(10.0)), np.zeros(22)]
+    frame = pd.DataFrame({"combination": ["a+b"] * 4, "accepted": [True] * 4, "reason": ["accepted"] * 4,
+                          "q1": [0.1] * 4, "pn_mm": [1.0] * 4, "q": q, "scene_id": ["s0", "s0", "s0", "s1"],
+                          "lineage": [3, 3, 5, 3]})
+    out = quality_summary(frame)
+    # scene s0: rows 0 and 1 share lineage 3 (1 degree apart); row 2 is another chain (10 and 9 degrees away);
+    # row 3 is alone in its scene, so lineage 3 there is another chain
+    assert out["lineages"] == 3 and out["sibling_pairs"] == 1
+    assert out["siblings_joint_diff_deg_median"] == 1.0 and out["others_joint_diff_deg_median"] == 9.5
