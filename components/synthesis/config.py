@@ -247,8 +247,10 @@ class SynthesisConfig(Section):
         description="Population resampling (not in the paper; off when empty): after these fractions of the MALA chain "
         "(each in (0, 1), e.g. [0.5]) the resample_fraction worst candidates, ranked by resample score, continue from "
         "copies of the best ones (optimizer.resample_sources), so the rest of the chain is spent on the basins that "
-        "are closest to acceptance; the remaining MALA steps' noise makes the copies diverge.  Trades diversity "
-        "(Div, distinct lineages: SynthesisResult.stats['lineages_accepted']) for accept rate and quality.")
+        "are closest to acceptance.  Measured on the 20 bench Syn-Pl pairs at [0.5]: 48.1 % accepted against 30.1 %, "
+        "but 321 distinct chains accepted against 385, the copies 0.3 deg from their source (near-duplicates; with "
+        "the jitter below 3.2 deg, 348 chains) and Q1, PN, Div and the scripted lift unchanged: README 'Population "
+        "resampling'.  SynthesisResult.stats['lineages_accepted'] and the table's lineage column count the chains.")
     resample_fraction: float = Field(
         0.5, gt=0.0, lt=1.0,
         description="Share of the batch replaced at each resampling; each survivor is copied at most "
