@@ -42,24 +42,18 @@ def effective_optimizer(synthesis, n_objects: int, sets: list[str]):
 def sibling_spread(result) -> dict:
     """Median mean-|dq| (deg) and palm distance (mm) between accepted rows of the same lineage (copies made by
     ``resample_at``) and between accepted rows of different lineages; None where there are no such pairs."""
+    from benchmarks.synthesis_progress import joint_differences_deg, lineage_pairs, median_or_none
+
     accepted = result.accepted.nonzero().flatten()
-    q, p, lineage = result.q[accepted].double(), result.p[accepted].double(), result.lineage[accepted]
-    joint = torch_deg((q.unsqueeze(0) - q.unsqueeze(1)).abs().mean(-1))
-    palm = (p.unsqueeze(0) - p.unsqueeze(1)).norm(dim=-1) * 1000.0
-    upper = np.triu(np.ones((len(accepted), len(accepted)), dtype=bool), k=1)
-    same = (lineage.unsqueeze(0) == lineage.unsqueeze(1)).cpu().numpy() & upper
-    other = ~same & upper
+    joint = joint_differences_deg(result.q[accepted].double().cpu().numpy())
+    p = result.p[accepted].double().cpu().numpy()
+    palm = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1) * 1000.0
+    masks = lineage_pairs(result.lineage[accepted].cpu().numpy())
     out = {}
-    for name, mask in (("siblings", same), ("others", other)):
-        out[f"{name}_joint_diff_deg_median"] = round(float(np.median(joint.cpu().numpy()[mask])), 3) if mask.any() else None
-        out[f"{name}_palm_mm_median"] = round(float(np.median(palm.cpu().numpy()[mask])), 2) if mask.any() else None
+    for name, mask in zip(("siblings", "others"), masks):
+        out[f"{name}_joint_diff_deg_median"] = median_or_none(joint[mask], 3)
+        out[f"{name}_palm_mm_median"] = median_or_none(palm[mask], 2)
     return out
-
-
-def torch_deg(x):
-    import math
-
-    return x * (180.0 / math.pi)
 
 
 def run_experiment(objects: list[str], seed: int, sets: list[str], profile: str = "bench", device: str = "cpu",

@@ -50,6 +50,31 @@ def quality_summary(frame) -> dict:
     return out
 
 
+def lineage_pairs(lineage) -> tuple:
+    """Upper-triangle masks (N, N) of the row pairs of one scene that share a lineage (copies made by
+    ``resample_at``) and of those that do not.  lineage (N,) -> (siblings, others)."""
+    import numpy as np
+
+    lineage = np.asarray(lineage)
+    upper = np.triu(np.ones((len(lineage), len(lineage)), dtype=bool), k=1)
+    same = lineage[:, None] == lineage[None, :]
+    return upper & same, upper & ~same
+
+
+def joint_differences_deg(q) -> "np.ndarray":
+    """Mean |q_a - q_b| over the joints, in degrees, of every pair of rows.  q (N, J) rad -> (N, N)."""
+    import numpy as np
+
+    q = np.degrees(np.asarray(q, dtype=float))
+    return np.abs(q[:, None, :] - q[None, :, :]).mean(-1)
+
+
+def median_or_none(values, digits: int):
+    import numpy as np
+
+    return round(float(np.median(values)), digits) if len(values) else None
+
+
 def sibling_spread(accepted) -> dict:
     """Median mean-|dq| (deg) between two accepted rows of one scene that share a lineage (copies made by
     ``resample_at``), and between two of one scene that do not; None where there is no such pair."""
@@ -57,17 +82,13 @@ def sibling_spread(accepted) -> dict:
 
     same, other = [], []
     for _, scene in accepted.groupby("scene_id"):
-        q = np.degrees(np.stack(scene.q.to_numpy()))
-        lineage = scene.lineage.to_numpy()
-        upper = np.triu(np.ones((len(scene), len(scene)), dtype=bool), k=1)
-        diff = np.abs(q[:, None, :] - q[None, :, :]).mean(-1)
-        sibling = lineage[:, None] == lineage[None, :]
-        same.append(diff[upper & sibling])
-        other.append(diff[upper & ~sibling])
+        diff = joint_differences_deg(np.stack(scene.q.to_numpy()))
+        siblings, others = lineage_pairs(scene.lineage.to_numpy())
+        same.append(diff[siblings])
+        other.append(diff[others])
     same, other = np.concatenate(same), np.concatenate(other)
-    return {"sibling_pairs": int(len(same)),
-            "siblings_joint_diff_deg_median": round(float(np.median(same)), 3) if len(same) else None,
-            "others_joint_diff_deg_median": round(float(np.median(other)), 3) if len(other) else None}
+    return {"sibling_pairs": int(len(same)), "siblings_joint_diff_deg_median": median_or_none(same, 3),
+            "others_joint_diff_deg_median": median_or_none(other, 3)}
 
 
 def shard_tables(stage_dir: Path) -> list[Path]:

@@ -36,3 +36,22 @@ def test_the_experiment_uses_the_stage_setting_for_its_object_count_and_set_fiel
     assert pair.contacts_per_object == 3 and four.contacts_per_object == 2  # bench: 2 contacts per object for four
     assert four.w_pen == synthesis.optimizer_by_object_count[4]["w_pen"] != pair.w_pen
     assert pair.w_fc == four.w_fc == 7 and pair.batch_size == four.batch_size == 16
+
+
+def test_sibling_spread_measures_copies_against_other_chains_in_joints_and_palm():
+    import math
+    from types import SimpleNamespace
+
+    import torch
+
+    from benchmarks.synthesis_experiment import sibling_spread
+
+    q = torch.zeros(4, 22)
+    q[1] += math.radians(2.0)  # a copy of row 0, 2 degrees off
+    q[2] += math.radians(20.0)  # another chain
+    p = torch.tensor([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    result = SimpleNamespace(accepted=torch.tensor([True, True, True, False]), q=q, p=p,
+                             lineage=torch.tensor([0, 0, 2, 0]))
+    out = sibling_spread(result)  # row 3 is not accepted, so only (0, 1) are siblings
+    assert out["siblings_joint_diff_deg_median"] == 2.0 and out["siblings_palm_mm_median"] == 1.0
+    assert out["others_joint_diff_deg_median"] == 19.0 and out["others_palm_mm_median"] == 49.5
