@@ -203,6 +203,14 @@ class SynthesisConfig(Section):
         0.02, ge=0.0,
         description="With contact_assignment='nearest': distance (m) added to the score of a candidate whose hand "
         "patch faces straight away from the object (half of it when perpendicular).")
+    contact_regions_excluded: list[str] = Field(
+        default_factory=list,
+        description="Hand contact regions (names of assets/hand/contact_regions.yaml, e.g. [palm, palm_hypothenar]) "
+        "that may never be a chosen contact: the initial draw, the contact switches and every reassignment skip "
+        "their candidates (GraspProblem.candidate_allowed).  The hand may still touch the objects there; only E_fc "
+        "and E_dist stop asking for it.  Empty = every region (the official release).  Reason to exclude the palm: "
+        "for an object resting on the table under a downward-facing palm, a palm contact can only be opposed from "
+        "below, where the fingers cannot reach: README 'Palm contacts'.")
     contact_switch_probability: float = Field(
         0.25, ge=0.0, le=1.0,
         description="Probability of a contact switch (official: 0.25); what it applies to is set by contact_switch_mode.")

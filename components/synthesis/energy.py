@@ -345,6 +345,7 @@ class GraspProblem:
             raise MultigraspError(
                 f"{objects.n_objects} objects x synthesis.contacts_per_object={cfg.contacts_per_object} contacts need more "
                 f"than the hand's {n_candidates} contact candidates; lower contacts_per_object or raise hand.contact_points_per_region")
+        check_excluded_regions(hand.region_names, cfg)
         lengths = objects.radii if cfg.fc_normalize_by_radius else torch.ones_like(objects.radii)
         group_length = objects.radii.new_tensor(objects.bounding_radius if cfg.fc_normalize_by_radius else 1.0)
         return cls(hand=hand, objects=objects, cfg=cfg,
@@ -364,12 +365,37 @@ class GraspProblem:
         return region_finger[self.hand.contact_region_of]
 
     @property
+    def candidate_allowed(self) -> Optional[Tensor]:
+        """Candidates that may be chosen as contacts (K,) bool: those outside ``contact_regions_excluded``
+        (None when nothing is excluded, so callers skip the mask)."""
+        if not self.cfg.contact_regions_excluded:
+            return None
+        names = self.hand.region_names
+        excluded = torch.tensor([n in self.cfg.contact_regions_excluded for n in names],
+                                device=self.hand.contact_region_of.device)
+        return ~excluded[self.hand.contact_region_of]
+
+    @property
     def n_candidates(self) -> int:
         return len(self.hand.contact_region_of)
 
     def effective_joints(self, q: Tensor) -> Tensor:
         """The joint angles the energy sees: with ``couple_distal_joints`` the J0 of FF/MF/RF/LF follow J1."""
         return self.hand.expand_actuated(self.hand.actuated(q)) if self.cfg.couple_distal_joints else q
+
+
+def check_excluded_regions(region_names: list, cfg: SynthesisConfig) -> None:
+    """One-line :class:`MultigraspError` when ``contact_regions_excluded`` names a region the hand does not have,
+    or leaves fewer fingers than one object's contacts need (the palm counts as one finger)."""
+    unknown = sorted(set(cfg.contact_regions_excluded) - set(region_names))
+    if unknown:
+        raise MultigraspError(f"synthesis.optimizer.contact_regions_excluded: unknown hand region(s) {unknown}; "
+                              f"the regions are {list(region_names)}")
+    fingers = {n.split("_")[0] for n in region_names if n not in cfg.contact_regions_excluded}
+    if len(fingers) < cfg.contacts_per_object:
+        raise MultigraspError(f"synthesis.optimizer.contact_regions_excluded leaves {len(fingers)} finger(s) "
+                              f"({sorted(fingers)}) for contacts_per_object={cfg.contacts_per_object} contacts on "
+                              f"distinct fingers; exclude fewer regions")
 
 
 def assignment_scores(problem: "GraspProblem", points: Tensor, hand_normals: Tensor) -> Tensor:
@@ -405,6 +431,8 @@ def nearest_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tens
     finger_of = problem.finger_of
     n_fingers = int(finger_of.max()) + 1
     score = assignment_scores(problem, points, hand_normals)  # (B, n_obj, K)
+    if (allowed := problem.candidate_allowed) is not None:  # excluded regions never win
+        score = score.masked_fill(~allowed, float("inf"))
     with torch.no_grad():
         best_score, best_index = [], []
         for f in range(n_fingers):
@@ -430,6 +458,9 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
        (the terms of E that depend on the contacts; E_pen and E_prior depend on the pose only);
     3. object j takes the best set, unless its current contacts score lower (a row's energy never rises).
 
+    Candidates of ``contact_regions_excluded`` are never offered, and a set with a finger that has no allowed
+    candidate left scores +inf.
+
     ``w_fc`` / ``w_dist`` / ``w_align`` override the config's weights (MALA ramp, refinement, approach).
     points, hand_normals (B, K, 3) (detached), contacts (B, n_obj, C) -> (B, n_obj, C) long."""
     import itertools
@@ -444,6 +475,8 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
     sets = torch.tensor(list(itertools.combinations(range(n_fingers), per)), device=points.device)  # (T, C)
     out = contacts.clone()
     taken = torch.zeros(batch, n_cand, dtype=torch.bool, device=points.device)
+    if (allowed := problem.candidate_allowed) is not None:  # excluded candidates count as taken from the start
+        taken |= ~allowed.unsqueeze(0)
     rows = torch.arange(batch, device=points.device)
 
     def score(j: int, index: Tensor) -> Tensor:  # index (B, T, C) -> e_j (B, T)
@@ -463,13 +496,15 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
         for j in range(objects.n_objects):
             assign = d_all[..., j].abs() + cfg.assign_align_scale_m * (1.0 + (hand_normals * n_all[:, :, j]).sum(-1)) / 2.0
             assign = assign.masked_fill(taken, float("inf"))  # (B, K)
-            best = []
+            best, open_ = [], []
             for f in range(n_fingers):
                 members = (finger_of == f).nonzero().squeeze(-1)
-                best.append(members[assign[:, members].argmin(-1)])
-            best = torch.stack(best, -1)  # (B, F)
+                value, arg = assign[:, members].min(-1)
+                best.append(members[arg])
+                open_.append(torch.isfinite(value))
+            best, open_ = torch.stack(best, -1), torch.stack(open_, -1)  # (B, F)
             options = best[:, sets]  # (B, T, C)
-            e_sets = score(j, options)
+            e_sets = score(j, options).masked_fill(~open_[:, sets].all(-1), float("inf"))
             value, arg = e_sets.min(-1)  # (B,)
             current = score(j, out[:, j].unsqueeze(1)).squeeze(1)
             clash = taken.gather(1, out[:, j]).any(-1)  # current contacts taken by an earlier object

@@ -16,7 +16,8 @@ Every candidate starts with its palm facing the objects from above the table:
    :func:`pair_palm_poses`: the palm faces down above the centroid with the fingers across (or along) the
    line joining the two objects farthest apart;
 5. contacts: ``contacts_per_object`` distinct candidate indices per object, all distinct in the row and,
-   with ``contact_distinct_fingers``, the contacts of one object on different fingers.
+   with ``contact_distinct_fingers``, the contacts of one object on different fingers; none in
+   ``contact_regions_excluded``.
 """
 
 from __future__ import annotations
@@ -159,11 +160,14 @@ def initial_poses(problem: GraspProblem, generator: torch.Generator) -> tuple[Te
     q = initial_joint_angles(hand, batch, cfg.init_joint_fraction, generator)
     contacts = random_distinct_contacts(batch, objects.n_objects, cfg.contacts_per_object, problem.n_candidates,
                                         generator, hand.device)
-    if cfg.contact_distinct_fingers:  # redraw every contact uniformly among those on a free finger
+    if cfg.contact_distinct_fingers or cfg.contact_regions_excluded:
+        # redraw every contact uniformly among the allowed candidates (on a free finger with contact_distinct_fingers)
         from components.synthesis.optimizer import switch_contacts
 
         redraw = cfg.model_copy(update={"contact_switch_mode": "per_contact", "contact_switch_probability": 1.0,
                                         "contact_switch_local_probability": 0.0,
                                         "contact_switch_guided_probability": 0.0})
-        contacts = switch_contacts(contacts, hand.contact_region_of, redraw, generator, finger_of=problem.finger_of)
+        contacts = switch_contacts(contacts, hand.contact_region_of, redraw, generator,
+                                   finger_of=problem.finger_of if cfg.contact_distinct_fingers else None,
+                                   candidate_allowed=problem.candidate_allowed)
     return pack(p, rot, q), contacts

@@ -83,14 +83,16 @@ def reassign_contacts(problem: GraspProblem, x: Tensor, contacts: Tensor, w_fc: 
 
 
 def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, generator: torch.Generator,
-                    finger_of: Optional[Tensor] = None, log_weights: Optional[Tensor] = None) -> Tensor:
+                    finger_of: Optional[Tensor] = None, log_weights: Optional[Tensor] = None,
+                    candidate_allowed: Optional[Tensor] = None) -> Tensor:
     """Stochastic contact switching (module docstring, step 2).
 
     Which contacts switch: with ``contact_switch_mode='per_step'``, with probability p a row switches one
     uniformly chosen contact of every object; with ``'per_contact'`` each contact switches independently
     with probability p (p = ``contact_switch_probability``).  Where to, among the *allowed* candidates --
     used by no contact of the row (itself included, so a switch always changes it) and, when ``finger_of``
-    (K,) is given, on no finger already touching the same object through another of its contacts:
+    (K,) is given, on no finger already touching the same object through another of its contacts, and, when
+    ``candidate_allowed`` (K,) bool is given, among those it allows (``contact_regions_excluded``):
 
     * with probability ``contact_switch_local_probability``, uniformly in the contact's own hand region
       (it slides along its link; falls back to the next rule when the region has no allowed candidate);
@@ -125,6 +127,8 @@ def switch_contacts(contacts: Tensor, region_of: Tensor, cfg: SynthesisConfig, g
         obj = slot // per_object
         allowed = torch.ones(rows.numel(), n_candidates, dtype=torch.bool, device=flat.device)
         allowed.scatter_(1, flat[rows], False)  # (R, K): no candidate used in the row
+        if candidate_allowed is not None:
+            allowed &= candidate_allowed.unsqueeze(0)
         if finger_of is not None:
             siblings = [obj * per_object + c for c in range(per_object) if obj * per_object + c != slot]
             for other in siblings:  # no finger already on this object
@@ -215,7 +219,8 @@ class Annealer:
         else:
             contacts_new = switch_contacts(state.contacts, self.problem.hand.contact_region_of, cfg, self.generator,
                                            finger_of=self.problem.finger_of if cfg.contact_distinct_fingers else None,
-                                           log_weights=self._guide_log_weights())
+                                           log_weights=self._guide_log_weights(),
+                                           candidate_allowed=self.problem.candidate_allowed)
         self._proposal = (x_new, contacts_new)
         return x_new, contacts_new
 
