@@ -24,6 +24,11 @@ Opposition of a set of unit contact normals n_1..n_k is max_{i<j} -n_i . n_j: 1 
 summary splits the episodes into all / some / no objects lifted and gives each object's lift rate with and without
 opposition at the pre-grasp, the quantity that separates the grasps that lift from those that do not (README
 "Why the pre-grasps drop").  Each object of each episode is one row of the JSON's ``objects``.
+
+Each object row also names the fingers of the grasp's *chosen* contacts on it (``contact_fingers``: the synthesis
+energy's contacts, from the table's ``contact_regions``; ``palm`` for the palm's regions), and the summary's
+``by_contact_finger`` gives, per finger, the lift rate of the objects whose chosen contacts use it and of those whose
+do not, and the success rate of the episodes where some object uses it and of the others (README "Palm contacts").
 """
 
 from __future__ import annotations
@@ -111,9 +116,11 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                         lifts = end.obj_pos[:, 2] - env.episode.start_heights
                         moved = np.linalg.norm(closed.obj_pos - start_pos, axis=1)
                         q1 = float(group.iloc[pose]["q1"]) if "q1" in group else None
+                        fingers = chosen_fingers(group.iloc[pose], hand.region_names)
                         for j, name in enumerate(env.records[pose].scene.names):
                             objects.append({
                                 "combination": combination, "pose": pose, "trial": trial, "object": name, "q1": q1,
+                                **({"contact_fingers": fingers[j]} if fingers is not None else {}),
                                 "pregrasp": before[j], "after_closure": after[j],
                                 "closure_moved_mm": round(1e3 * float(moved[j]), 3),
                                 "final_lift_m": round(float(lifts[j]), 4), "lifted": bool(lifts[j] > height)})
@@ -127,6 +134,36 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     return {"grasps": str(grasps), "split": split, "controller": controller, "closure_steps": lift.closure_steps,
             "near_mm": round(near_m * 1e3, 3), "opposed_above": opposed_above,
             "summary": summarise(episodes, objects, opposed_above), "episodes": episodes, "objects": objects}
+
+
+def chosen_fingers(row, region_names: list) -> list[list[str]] | None:
+    """Per object, the sorted fingers (region-name prefix: ``ff`` ... ``th``, ``palm``) of the row's chosen contacts,
+    from its flat ``contact_regions`` (n_obj * C region indices, object-major); None without that column."""
+    if "contact_regions" not in row or row["contact_regions"] is None:
+        return None
+    regions = np.asarray(row["contact_regions"], dtype=np.int64).reshape(len(row["object_names"]), -1)
+    return [sorted({region_names[r].split("_")[0] for r in obj}) for obj in regions]
+
+
+def by_contact_finger(episodes: list[dict], objects: list[dict]) -> dict:
+    """Per finger of the chosen contacts: objects using it and their lift rate against the others', and the success
+    rate of episodes where some object uses it against the others' (module docstring)."""
+    rows = [o for o in objects if "contact_fingers" in o]
+    by_episode: dict[tuple, list[dict]] = {}
+    for o in rows:
+        by_episode.setdefault((o["combination"], o["pose"], o["trial"]), []).append(o)
+    out = {}
+    for finger in sorted({f for o in rows for f in o["contact_fingers"]}):
+        uses = [finger in o["contact_fingers"] for o in rows]
+        ep = [(e["success"], any(finger in o["contact_fingers"] for o in by_episode[key]))
+              for e in episodes if (key := (e["combination"], e["pose"], e["trial"])) in by_episode]
+        out[finger] = {"objects_with": int(sum(uses)),
+                       "lifted_with": _rate([o["lifted"] for o, u in zip(rows, uses) if u]),
+                       "lifted_without": _rate([o["lifted"] for o, u in zip(rows, uses) if not u]),
+                       "episodes_with": int(sum(u for _, u in ep)),
+                       "success_with": _rate([s for s, u in ep if u]),
+                       "success_without": _rate([s for s, u in ep if not u])}
+    return out
 
 
 def _rate(flags) -> float | None:
@@ -169,6 +206,7 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -
                                            if "normal_force_n" in o["after_closure"]]),
         "closure_moved_mm_median": (round(float(np.median([o["closure_moved_mm"] for o in objects])), 2)
                                     if objects else None),
+        "by_contact_finger": by_contact_finger(episodes, objects),
     }
 
 
@@ -195,7 +233,10 @@ def main(argv: list[str] | None = None) -> int:
 
     def report(result: dict) -> None:
         for key, value in result["summary"].items():
-            print(f"{key:32s} {value}")
+            if key != "by_contact_finger":
+                print(f"{key:32s} {value}")
+        for finger, rates in result["summary"].get("by_contact_finger", {}).items():
+            print(f"contact finger {finger:17s} {rates}")
 
     return finish_tool(args.json, compute, report)
 

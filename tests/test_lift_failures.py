@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from benchmarks.lift_failures import main, opposition, summarise
+from benchmarks.lift_failures import by_contact_finger, chosen_fingers, main, opposition, summarise
 from tests.test_scripted_lift import hand_above_sphere_table, sphere_argv
 
 
@@ -47,6 +47,28 @@ def test_summary_splits_the_lift_rate_by_opposition_at_the_pregrasp():
     assert s["after_closure_no_contact"] == 0.25 and s["closure_moved_mm_median"] == 2.0
 
 
+def test_chosen_fingers_and_the_lift_rates_by_contact_finger():
+    names = ["palm", "palm_hypothenar", "ff_distal", "mf_distal", "th_distal"]
+    row = {"object_names": ["a", "b"], "contact_regions": [0, 2, 4, 1, 2, 3]}
+    assert chosen_fingers(row, names) == [["ff", "palm", "th"], ["ff", "mf", "palm"]]
+    assert chosen_fingers({"object_names": ["a"]}, names) is None
+    # episode 0: object 0 (th) lifts, object 1 (no th) does not; episode 1: neither uses th, both lift
+    episodes = [{"combination": "a+b", "pose": 0, "trial": 0, "success": False, "objects_lifted": 1, "n_objects": 2},
+                {"combination": "a+b", "pose": 1, "trial": 0, "success": True, "objects_lifted": 2, "n_objects": 2}]
+    objects = [{**_object(0, True, True, True), "contact_fingers": ["ff", "th"]},
+               {**_object(0, True, True, False), "contact_fingers": ["ff", "mf"]},
+               {**_object(1, True, True, True), "contact_fingers": ["ff", "palm"]},
+               {**_object(1, True, True, True), "contact_fingers": ["mf", "palm"]}]
+    rates = by_contact_finger(episodes, objects)
+    assert set(rates) == {"ff", "mf", "palm", "th"}
+    assert rates["th"] == {"objects_with": 1, "lifted_with": 1.0, "lifted_without": 0.6667, "episodes_with": 1,
+                           "success_with": 0.0, "success_without": 1.0}
+    assert rates["palm"]["objects_with"] == 2 and rates["palm"]["lifted_without"] == 0.5
+    assert rates["ff"]["lifted_without"] == 1.0 and rates["ff"]["success_without"] is None
+    assert summarise(episodes, objects, 0.5)["by_contact_finger"] == rates
+    assert by_contact_finger(episodes, [_object(0, True, True, True)]) == {}  # tables without contact_regions
+
+
 def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, capsys):
     """The open hand of ``hand_above_sphere_table`` touches the sphere with one link only (a few mm deep): the
     sphere is not opposed at the pre-grasp (opposition -1), the closure presses that one link (the physics ran, so
@@ -67,6 +89,7 @@ def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, caps
         assert record["after_closure"]["opposition"] == -1.0 and "normal_force_n" in record["after_closure"]
         assert record["closure_moved_mm"] < 5.0
     assert "pregrasp_opposed" in capsys.readouterr().out
+    assert s["by_contact_finger"] == {}  # the table has no contact_regions column
     # the straight lift has no closure: no physics before the first observation, no contact forces read
     assert main([*sphere_argv(path, tmp_path), "--trials", "1", "--max-poses", "1", "--controller", "straight",
                  "--json", str(out)]) == 0
