@@ -210,7 +210,9 @@ class SynthesisConfig(Section):
         "their candidates (GraspProblem.candidate_allowed).  The hand may still touch the objects there; only E_fc "
         "and E_dist stop asking for it.  Empty = every region (the official release).  Reason to exclude the palm: "
         "for an object resting on the table under a downward-facing palm, a palm contact can only be opposed from "
-        "below, where the fingers cannot reach: README 'Palm contacts'.")
+        "below, where the fingers cannot reach.  Measured on the 20 bench Syn-Pl pairs (B 64) with the palm's two regions "
+        "excluded: 45.6 % accepted against 30.1 %, Q1 0.084 against 0.078, PN 1.09 against 1.38 mm, Div 14.3 against "
+        "16.8 deg, scripted squeeze lift 16.0 % against 11.3 %: README 'Palm contacts'.")
     contact_switch_probability: float = Field(
         0.25, ge=0.0, le=1.0,
         description="Probability of a contact switch (official: 0.25); what it applies to is set by contact_switch_mode.")
