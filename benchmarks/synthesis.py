@@ -86,7 +86,7 @@ def run_synthesis_benchmark(repeats: int = 7, threads: int = 0, device: str = "c
     sync = (lambda: torch.cuda.synchronize()) if dev.type == "cuda" else (lambda: None)
     hand = HandModel(HandConfig(), device=dev, dtype=torch.float32)
     profile = load_config(PROFILE).synthesis  # the optimiser and the metric settings, read once
-    cfg = bench_optimizer(profile.optimizer, steps_scale)
+    cfg = bench_optimizer(profile.optimizer_for(len(BENCH_OBJECTS)), steps_scale)  # the stage's optimiser for a pair
     ticks: list[tuple[int, float]] = []
 
     def progress(step: int, total: int, info: dict) -> None:
