@@ -16,6 +16,13 @@ def test_profiles_smoke_mini_bench_paper_load():
         assert cfg.run.workdir.is_absolute()
 
 
+def test_bench_pairs_choose_no_palm_contacts_while_singles_and_many_objects_keep_them():
+    synthesis = load_config("bench").synthesis
+    assert synthesis.optimizer_for(2).contact_regions_excluded == ["palm", "palm_hypothenar"]
+    for count in (1, 3, 4, 5):
+        assert synthesis.optimizer_for(count).contact_regions_excluded == []
+
+
 def test_set_overrides_are_yaml_parsed(tmp_path):
     cfg = load_config("smoke", sets=["run.seed=7", "scenes.per_combination.train=3", "run.runner=processes"],
                       workdir=tmp_path)
