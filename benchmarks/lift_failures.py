@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, resolve_source
-from benchmarks.scripted_lift import add_lift_args, scripted_setup, select_grasps
+from benchmarks.grasp_tables import add_source_args, finish_tool, resolve_source
+from benchmarks.scripted_lift import add_lift_args, check_lift_args, scripted_setup, select_grasps
 
 
 def opposition(normals: np.ndarray) -> float:
@@ -73,7 +73,7 @@ def touching(world, body: int, radius: float, with_force: bool) -> dict:
 
 
 def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str, near_m: float,
-        opposed_above: float) -> dict:
+        opposed_above: float, n_objects: int | None = None) -> dict:
     """Every episode's per-object record and the summary (module docstring)."""
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -82,7 +82,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     from components.execution.evaluation import trial_seed
     from tasks.specialists import records_from_table
 
-    frame = select_grasps(grasps, split)
+    frame = select_grasps(grasps, split, n_objects=n_objects)
     hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
     height, seed = lift.eval_success_height_m, cfg.specialists.eval_seed
     objects, episodes = [], []
@@ -131,7 +131,8 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
             finally:
                 env.close()
             print(f"lift failures: {combination} done", file=sys.stderr, flush=True)
-    return {"grasps": str(grasps), "split": split, "controller": controller, "closure_steps": lift.closure_steps,
+    return {"grasps": str(grasps), "split": split, "n_objects": n_objects, "controller": controller,
+            "closure_steps": lift.closure_steps,
             "near_mm": round(near_m * 1e3, 3), "opposed_above": opposed_above,
             "summary": summarise(episodes, objects, opposed_above), "episodes": episodes, "objects": objects}
 
@@ -220,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="an object is opposed when its contact normals' opposition exceeds this (default 0.5)")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    if (status := check_positive(args, "max_poses", "trials")) is not None:
+    if (status := check_lift_args(args)) is not None:
         return status
     if not args.near_mm > 0 or not -1.0 <= args.opposed_above <= 1.0:
         print("error: --near-mm must be positive and --opposed-above within [-1, 1]", file=sys.stderr)
@@ -229,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
         return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
-                   args.controller, args.near_mm * 1e-3, args.opposed_above)
+                   args.controller, args.near_mm * 1e-3, args.opposed_above, args.n_objects)
 
     def report(result: dict) -> None:
         for key, value in result["summary"].items():

@@ -30,10 +30,17 @@ from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool
 from components.errors import MultigraspError
 
 
-def select_grasps(grasps: Path, split: str | None, q1_range: tuple[float, float] = (-np.inf, np.inf)):
-    """Every accepted grasp of ``split`` (None: all) whose stored Q1 lies in ``q1_range`` (inclusive); one-line
-    :class:`MultigraspError` when a bound is given and the table has no Q1 or nothing lies in the range."""
+def select_grasps(grasps: Path, split: str | None, q1_range: tuple[float, float] = (-np.inf, np.inf),
+                  n_objects: int | None = None):
+    """Every accepted grasp of ``split`` (None: all) whose stored Q1 lies in ``q1_range`` (inclusive) and whose
+    scene holds ``n_objects`` objects (None: any); one-line :class:`MultigraspError` when a bound is given and the
+    table has no Q1, or nothing is left."""
     frame = read_accepted(grasps, split, sys.maxsize)  # every accepted row; --max-poses caps each combination
+    if n_objects is not None:
+        frame = frame[frame["object_names"].map(len) == n_objects]
+        if not len(frame):
+            raise MultigraspError(f"no accepted grasps of {n_objects}-object scenes in {grasps} — choose another "
+                                  "--n-objects or --split")
     if np.isfinite(q1_range).any():
         if "q1" not in frame:
             raise MultigraspError(f"{grasps} has no q1 column; --min-q1 / --max-q1 need a synthesize stage's table")
@@ -66,14 +73,14 @@ def scripted_setup(cfg, controller: str):
 
 
 def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str = "straight",
-        q1_range: tuple[float, float] = (-np.inf, np.inf)) -> dict:
+        q1_range: tuple[float, float] = (-np.inf, np.inf), n_objects: int | None = None) -> dict:
     """The scripted lift on every combination's first ``max_poses`` accepted grasps whose stored Q1 lies in
-    ``q1_range`` (inclusive; module docstring)."""
+    ``q1_range`` (inclusive) and whose scene holds ``n_objects`` objects (None: any; module docstring)."""
     from components.execution import LiftEnv
     from components.execution.evaluation import evaluate_lift
     from tasks.specialists import records_from_table
 
-    frame = select_grasps(grasps, split, q1_range)
+    frame = select_grasps(grasps, split, q1_range, n_objects)
     hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
     stage = cfg.specialists
     rows = []
@@ -97,7 +104,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                {"force_fraction": stage.squeeze_force_fraction, "squeeze_action": stage.squeeze_action,
                 "squeeze_joints": list(stage.squeeze_joints)})
     bounds = {k: float(v) for k, v in zip(("min_q1", "max_q1"), q1_range) if np.isfinite(v)}
-    return {"grasps": str(grasps), "split": split, "controller": controller, **setting, **bounds,
+    return {"grasps": str(grasps), "split": split, "n_objects": n_objects, "controller": controller, **setting, **bounds,
             "closure_steps": lift.closure_steps,
             **({"q1_mean": round(float(frame.groupby("combination").head(max_poses)["q1"].mean()), 4)}
                if "q1" in frame else {}),
@@ -114,6 +121,18 @@ def add_lift_args(parser: argparse.ArgumentParser, max_poses: int, trials: int, 
                         help=f"straight: the paper's w/o RL (specialists.scripted_force_fraction); squeeze: the env's "
                         f"grasp closure, then the squeeze-and-lift PPO starts from (specialists.squeeze_*); default "
                         f"{controller}")
+    parser.add_argument("--n-objects", type=int, default=None,
+                        help="only grasps of scenes with this many objects (2: the pairs; default: every scene)")
+
+
+def check_lift_args(args: argparse.Namespace) -> int | None:
+    """Exit status 2 after a one-line error when an option of :func:`add_lift_args` is out of range."""
+    if (status := check_positive(args, "max_poses", "trials")) is not None:
+        return status
+    if args.n_objects is not None and args.n_objects < 1:
+        print("error: --n-objects must be at least 1 (2: the pairs)", file=sys.stderr)
+        return 2
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,13 +143,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-q1", type=float, default=np.inf, help="only grasps whose stored Q1 is at most this")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
     args = parser.parse_args(argv)
-    if (status := check_positive(args, "max_poses", "trials")) is not None:
+    if (status := check_lift_args(args)) is not None:
         return status
 
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
         return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
-                   args.controller, (args.min_q1, args.max_q1))
+                   args.controller, (args.min_q1, args.max_q1), args.n_objects)
 
     return finish_tool(args.json, compute, row_report(
         lambda row: f"{row['combination']:24s} {row['n_poses']:4d} poses x {row['trials']} trials: success "
