@@ -87,17 +87,22 @@ def test_bad_trials_and_missing_split_are_one_line(hand, tmp_path, capsys):
 
 
 def test_n_objects_selects_scenes_by_object_count_and_a_bad_count_is_one_line(hand, tmp_path, capsys):
-    """``--n-objects 1`` keeps the single-sphere scenes; ``--n-objects 2`` finds no pair in this table: one line."""
+    """``--n-objects 1`` keeps the single-sphere scenes and drops an accepted two-object row (never simulated);
+    ``--n-objects 3`` finds nothing: one line."""
+    table = hand_above_sphere_table(hand).to_pylist()
+    pair = dict(table[0], scene_id="s1", combination="sphere+sphere", object_names=["sphere", "sphere"],
+                object_positions=[0.0, 0.0, 0.025, 0.1, 0.0, 0.025], object_quats_xyzw=[0.0, 0.0, 0.0, 1.0] * 2)
     path = tmp_path / "grasps.parquet"
-    pq.write_table(hand_above_sphere_table(hand), path)
+    pq.write_table(pa.Table.from_pylist([*table, pair]), path)
     out = tmp_path / "lift.json"
     base = [*sphere_argv(path, tmp_path), "--trials", "1", "--max-poses", "1", "--json", str(out)]
     assert main([*base, "--n-objects", "1"]) == 0
     result = json.loads(out.read_text())
-    assert result["n_objects"] == 1 and result["rows"][0]["n_poses"] == 1
+    assert result["n_objects"] == 1
+    assert [(row["combination"], row["n_poses"]) for row in result["rows"]] == [("sphere", 1)]
     capsys.readouterr()
-    assert main([*base, "--n-objects", "2"]) == 2
+    assert main([*base, "--n-objects", "3"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("error: no accepted grasps of 2-object scenes") and "\n" not in err
+    assert err.startswith("error: no accepted grasps of 3-object scenes") and "\n" not in err
     assert main([*base, "--n-objects", "0"]) == 2
     assert capsys.readouterr().err.strip() == "error: --n-objects must be at least 1 (2: the pairs)"
