@@ -207,13 +207,17 @@ def test_the_untrained_actor_starts_at_the_given_mean_action(factory):
         start = scripted_action(0.2, 0.9, [1, 2, 16])
         assert start[[1, 2, 16]].tolist() == pytest.approx([0.9] * 3) and float(start[20]) == pytest.approx(0.2)
         assert float(start.abs().sum()) == pytest.approx(2.9)
-        actor, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO), init_action=start)
-        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-            mean = actor(env.reset())["action"]
-        assert torch.allclose(mean, start, atol=0.03)  # the output layer's weights are scaled by 0.01
-        zero, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO))
-        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-            assert float(zero(env.reset())["action"].abs().max()) < 0.03
+        for mode in ("state", "independent"):
+            actor, _, norm = build_actor_critic(env, PPOConfig(**TINY_PPO, std_mode=mode), init_action=start)
+            observation = env.reset()
+            with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+                mean = actor(observation)["action"]
+                assert torch.allclose(mean, start, atol=2e-3)  # tanh(atanh(unit)) in float32, clamped at 0.999
+                norm.update(torch.randn(64, norm.mean.shape[0]) * 5.0 + 3.0)  # statistics move, the mean does not
+                assert torch.equal(actor(observation)["action"], mean)
+            zero, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO, std_mode=mode))
+            with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+                assert float(zero(env.reset())["action"].abs().max()) == 0.0
         hand = env.world.hand
         assert initial_action(SpecialistsStageConfig(init_policy="zero"), hand.actuated_joint_names) is None
         names = hand.actuated_joint_names
@@ -225,3 +229,66 @@ def test_the_untrained_actor_starts_at_the_given_mean_action(factory):
             initial_action(SpecialistsStageConfig(squeeze_joints=["FFJ2", "XXJ9"]), names)
     finally:
         env.close()
+
+
+def test_independent_std_starts_at_init_scale_and_is_one_learned_parameter_per_action(factory):
+    from components.execution.ppo import build_actor_critic
+
+    env = factory()
+    try:
+        actor, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO, std_mode="independent", init_scale=0.07))
+        with torch.no_grad():
+            out = actor(env.reset())
+        act_dim = env.action_spec.shape[-1]
+        assert out["scale"].shape[-1] == act_dim and torch.allclose(out["scale"], torch.full((act_dim,), 0.07))
+        state, _, _ = build_actor_critic(env, PPOConfig(**TINY_PPO))
+        n_state = sum(p.numel() for p in state.parameters())
+        n_indep = sum(p.numel() for p in actor.parameters())
+        # the state-dependent head has act_dim more outputs (x 32 hidden + bias); the independent one act_dim log-stds
+        assert n_state - n_indep == act_dim * 33 - act_dim
+    finally:
+        env.close()
+
+
+def test_gradient_clip_groups_are_the_parameters_the_optimiser_steps(factory):
+    """grad_clip 'separate' clips the actor's and the critic's gradients apart; the groups must be the very tensors
+    the loss module optimises, or the clip would act on copies."""
+    from torchrl.objectives import ClipPPOLoss
+
+    from components.execution.ppo import _clip_groups, build_actor_critic
+
+    env = factory()
+    try:
+        cfg = PPOConfig(**TINY_PPO)
+        actor, critic, _ = build_actor_critic(env, cfg)
+        loss = ClipPPOLoss(actor_network=actor, critic_network=critic)
+        optimised = {id(p) for p in loss.parameters()}
+        actor_group, critic_group = _clip_groups(actor, critic, cfg)
+        assert actor_group and critic_group and {id(p) for p in actor_group + critic_group} <= optimised
+        assert not {id(p) for p in actor_group} & {id(p) for p in critic_group}
+        assert len(_clip_groups(actor, critic, cfg.model_copy(update={"grad_clip": "joint"}))) == 1
+    finally:
+        env.close()
+
+
+def test_critic_warmup_leaves_the_actor_alone_and_target_kl_stops_the_epochs(factory, tmp_path):
+    cfg = PPOConfig(iterations=2, **dict(TINY_PPO, epochs=4), critic_warmup_iterations=1, target_kl=1e-12,
+                    reward_scale=0.1, std_mode="independent")
+    from components.execution.ppo import build_actor_critic
+
+    probe = factory()
+    start, start_critic, _ = build_actor_critic(probe, cfg)
+    probe.close()
+    result = train_ppo(factory, cfg.model_copy(update={"iterations": 1}), tmp_path / "w.pt")
+    first = result.history[0]
+    assert first["actor_trained"] is False and first["epochs"] == 4  # warm-up: target_kl does not cut the critic's epochs
+    actor_weights = {k: v for k, v in result.actor.state_dict().items() if "mean" not in k and "var" not in k
+                     and "count" not in k}
+    start_weights = start.state_dict()
+    assert all(torch.equal(v, start_weights[k]) for k, v in actor_weights.items())
+    assert any(not torch.equal(v, start_critic.state_dict()[k]) for k, v in result.critic.state_dict().items()
+               if k.endswith("weight"))
+    result = train_ppo(factory, cfg, tmp_path / "w.pt")
+    second = result.history[1]
+    assert second["actor_trained"] is True and second["epochs"] == 1 and second["kl_approx"] > 1e-12
+    assert 0.0 <= second["clip_fraction"] <= 1.0

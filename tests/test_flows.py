@@ -248,7 +248,12 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
             time.sleep(0.2)
         helpers = _child_pids(proc.pid)
         proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=120)
+        try:
+            rest, _ = proc.communicate(timeout=180)
+        except subprocess.TimeoutExpired:  # say what the run printed after the signal, not only that it timed out
+            proc.kill()
+            rest, _ = proc.communicate()
+            pytest.fail("the run did not stop within 180 s of SIGTERM; its output:\n" + "".join(seen) + rest)
     finally:
         if proc.poll() is None:
             proc.kill()

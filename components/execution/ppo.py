@@ -26,16 +26,17 @@ from __future__ import annotations
 
 import copy
 import io
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Literal, Optional
 
 import torch
 from pydantic import Field, PositiveInt
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
@@ -52,6 +53,9 @@ from components.fileio import atomic_write_bytes
 #: PPOConfig fields a finished training can be continued across: raising ``iterations`` trains on from the last
 #: checkpoint (``checkpoint_every`` only says when checkpoints are written).
 EXTENDABLE_FIELDS = frozenset({"iterations", "checkpoint_every"})
+
+#: The batch key GAE reads: the env's reward times ``PPOConfig.reward_scale`` (the env's own reward stays as it is).
+SCALED_REWARD = "reward_scaled"
 
 #: progress(iteration, total, info) after every iteration (info: reward, success, losses, eta_s, ...).
 ProgressFn = Callable[[int, int, dict], None]
@@ -87,6 +91,34 @@ class PPOConfig(Section):
         "lr 3e-4 took the Syn-Pl success from its start's 9.2 % to 1.8 %, 0.05 at lr 1e-4 to 6.0 %, 0.05 at lr 3e-4 to "
         "1.0 % (the learning rate made the difference; 0.05 kept as the best measured setting).")
     normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
+    std_mode: Literal["state", "independent"] = Field(
+        "state",
+        description="How the actor's standard deviation is parametrised.  'state': a second output of the actor MLP "
+        "(biased softplus, floor 0.01; the recipe until the thirty-first session) -- without an entropy bonus it can "
+        "shrink or grow per state, and in run D of the README it collapsed (entropy -38 -> -97).  'independent': one "
+        "learned log-std per action dimension (tensordict's AddStateIndependentNormalScale, as torchrl's MuJoCo PPO "
+        "recipe), starting at init_scale, floored at min_scale.")
+    min_scale: float = Field(1e-3, gt=0.0, description="Lower bound of the state-independent standard deviation (std_mode 'independent').")
+    grad_clip: Literal["joint", "separate"] = Field(
+        "separate",
+        description="'separate': the actor's and the critic's gradients are clipped to max_grad_norm each.  'joint' "
+        "(until the thirty-first session): one clip over both -- the critic's gradient norm (~14-21 on the lift's "
+        "value targets) then scales the actor's down to ~5 % of itself, by a factor that changes with every batch.")
+    reward_scale: float = Field(
+        1.0, gt=0.0,
+        description="Rewards are multiplied by this before GAE (the history's 'reward' stays unscaled).  The lift's "
+        "returns reach about +100 (success) and -100 to -170 (a fall pays the rest of the episode at once), while a fresh "
+        "critic outputs ~0: its L2 loss then swings between ~3 and ~500 from batch to batch.")
+    critic_warmup_iterations: int = Field(
+        0, ge=0,
+        description="First iterations in which only the critic learns (the actor's loss is not applied).  The actor "
+        "starts from a scripted controller (specialists.init_policy) and the critic from random weights: without a "
+        "warm-up the first actor updates follow the advantages of an untrained critic.")
+    target_kl: Optional[float] = Field(
+        None, gt=0.0,
+        description="Stop a batch's remaining epochs once the mean approximate KL between the acting and the updated "
+        "policy (ClipPPOLoss's kl_approx over the last epoch's minibatches) exceeds this; None: always all epochs.  "
+        "The history records kl_approx, clip_fraction and the epochs done.")
     checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
     validate_every: int = Field(
         10, ge=0,
@@ -143,15 +175,24 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     norm = RunningNorm(obs_dim)
-    head = _mlp(obs_dim, 2 * act_dim, cfg)
-    with torch.no_grad():  # NormalParamExtractor: scale = biased softplus(x); start near init_scale
-        head[-1].weight.mul_(0.01)
+    independent = cfg.std_mode == "independent"
+    head = _mlp(obs_dim, act_dim if independent else 2 * act_dim, cfg)
+    with torch.no_grad():
+        # the mean rows start at zero weight, so the untrained mean action is init_action whatever the observation
+        # (and whatever the normaliser's statistics); gradients still reach them through the hidden activations
+        head[-1].weight[:act_dim].zero_()
+        head[-1].weight[act_dim:].mul_(0.01)  # state std: scale = biased softplus(x), starting near init_scale
         head[-1].bias.zero_()
         if init_action is not None:
             low, high = env.action_spec.space.low, env.action_spec.space.high
             unit = (2.0 * (init_action.to(low) - low) / (high - low) - 1.0).clamp(-0.999, 0.999)
             head[-1].bias[:act_dim] = torch.atanh(unit)  # TanhNormal's mean action is tanh(loc) in the box
-    actor_net = nn.Sequential(norm, head, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}"))
+    if independent:
+        scale = AddStateIndependentNormalScale(act_dim, scale_mapping="exp", scale_lb=cfg.min_scale,
+                                               init_value=math.log(cfg.init_scale))
+    else:
+        scale = NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}")
+    actor_net = nn.Sequential(norm, head, scale)
     actor = ProbabilisticActor(
         TensorDictModule(actor_net, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"], spec=env.action_spec, distribution_class=TanhNormal,
@@ -234,6 +275,7 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
                               entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,
                               loss_critic_type="l2", normalize_advantage=True)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=critic, average_gae=False)
+    advantage.set_keys(reward=SCALED_REWARD)
     optimizer = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
     start_iteration, frames, history, validations, best = 0, 0, [], [], None
     checkpoint = Path(checkpoint)
@@ -269,7 +311,10 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
             frames += data.numel()
             if cfg.normalize_observations:
                 norm.update(data["observation"])
-            losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg)
+            data["next", SCALED_REWARD] = data["next", "reward"] * cfg.reward_scale
+            losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg,
+                                 train_actor=iteration > cfg.critic_warmup_iterations,
+                                 clip_groups=_clip_groups(actor, critic, cfg))
             collector.update_policy_weights_()
             updated = time.perf_counter()
             # where an iteration's wall time goes: waiting for the collector's batch, then the learner
@@ -295,28 +340,65 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
     return result
 
 
+def _clip_groups(actor, critic, cfg: PPOConfig) -> list[list[torch.Tensor]]:
+    """The parameter groups whose gradients are clipped to ``max_grad_norm`` each (``grad_clip``)."""
+    actor_params, critic_params = list(actor.parameters()), list(critic.parameters())
+    if cfg.grad_clip == "joint":
+        return [actor_params + critic_params]
+    return [actor_params, critic_params]
+
+
+@torch.no_grad()
+def policy_kl(actor, data: TensorDictBase) -> float:
+    """KL(acting policy || current policy) over a batch, estimated as mean((r - 1) - log r) with r the probability
+    ratio of the batch's actions (Schulman's k3 estimator: unbiased and never negative, unlike the plain mean of
+    -log r that ClipPPOLoss reports as kl_approx).  Ratios of actions at the box's edge (tanh saturated) are clamped
+    to e^+-20."""
+    flat = data.reshape(-1)
+    log_ratio = actor.get_dist(flat).log_prob(flat["action"]) - flat["action_log_prob"]
+    log_ratio = log_ratio[torch.isfinite(log_ratio)].clamp(-20.0, 20.0)
+    return float((torch.expm1(log_ratio) - log_ratio).mean()) if log_ratio.numel() else 0.0
+
+
 def _ppo_update(data: TensorDictBase, advantage: GAE, loss_module: ClipPPOLoss, optimizer, buffer: ReplayBuffer,
-                cfg: PPOConfig) -> dict:
-    """``epochs`` passes of minibatch PPO over one batch (advantages recomputed each epoch, as torchrl's recipe)."""
+                cfg: PPOConfig, train_actor: bool = True, clip_groups: Optional[list] = None) -> dict:
+    """Up to ``epochs`` passes of minibatch PPO over one batch (advantages recomputed each epoch, as torchrl's
+    recipe).  ``train_actor`` False: the critic's loss only (``critic_warmup_iterations``).  After an epoch whose
+    :func:`policy_kl` exceeds ``target_kl`` the batch's remaining epochs are skipped.  Returns the mean losses, the
+    last epoch's ``kl_approx`` (:func:`policy_kl`) and ``clip_fraction``, and the ``epochs`` done."""
     sums: dict[str, float] = {}
-    steps = 0
+    steps, epochs_done, epoch_kl, epoch_clip = 0, 0, 0.0, 0.0
+    groups = clip_groups if clip_groups is not None else [list(loss_module.parameters())]
     for _ in range(cfg.epochs):
         with torch.no_grad():
             data = advantage(data)
         buffer.empty()
         buffer.extend(data.reshape(-1))
+        clips = []
         for batch in buffer:
             loss = loss_module(batch)
-            total = loss["loss_objective"] + loss["loss_critic"] + loss.get("loss_entropy", torch.zeros(()))
+            total = loss["loss_critic"]
+            if train_actor:
+                total = total + loss["loss_objective"] + loss.get("loss_entropy", torch.zeros(()))
             optimizer.zero_grad()
             total.backward()
-            torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.max_grad_norm)
+            for params in groups:
+                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             optimizer.step()
             for key in ("loss_objective", "loss_critic", "entropy"):
                 if key in loss.keys():
                     sums[key] = sums.get(key, 0.0) + float(loss[key].detach())
+            if "clip_fraction" in loss.keys():
+                clips.append(float(loss["clip_fraction"].detach()))
             steps += 1
-    return {k: v / max(steps, 1) for k, v in sums.items()}
+        epochs_done += 1
+        epoch_kl = policy_kl(loss_module.actor_network, data)
+        epoch_clip = sum(clips) / max(len(clips), 1)
+        if train_actor and cfg.target_kl is not None and epoch_kl > cfg.target_kl:
+            break
+    out = {k: v / max(steps, 1) for k, v in sums.items()}
+    out.update(kl_approx=epoch_kl, clip_fraction=epoch_clip, epochs=epochs_done, actor_trained=train_actor)
+    return out
 
 
 def episode_stats(data: TensorDictBase) -> dict:
