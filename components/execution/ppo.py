@@ -95,7 +95,7 @@ class PPOConfig(Section):
         "state",
         description="How the actor's standard deviation is parametrised.  'state': a second output of the actor MLP "
         "(biased softplus, floor 0.01; the recipe until the thirty-first session) -- without an entropy bonus it can "
-        "shrink or grow per state, and in run D of the README it collapsed (entropy -38 -> -97).  'independent': one "
+        "shrink or grow per state, and in run D of docs/experiments.md it collapsed (entropy -38 -> -97).  'independent': one "
         "learned log-std per action dimension (tensordict's AddStateIndependentNormalScale, as torchrl's MuJoCo PPO "
         "recipe), starting at init_scale, floored at min_scale.")
     min_scale: float = Field(1e-3, gt=0.0, description="Lower bound of the state-independent standard deviation (std_mode 'independent').")
@@ -117,7 +117,7 @@ class PPOConfig(Section):
     target_kl: Optional[float] = Field(
         None, gt=0.0,
         description="Stop a batch's remaining epochs once the mean approximate KL between the acting and the updated "
-        "policy (ClipPPOLoss's kl_approx over the last epoch's minibatches) exceeds this; None: always all epochs.  "
+        "policy (policy_kl, the k3 estimator over the whole batch after each epoch) exceeds this; None: always all epochs.  "
         "The history records kl_approx, clip_fraction and the epochs done.")
     checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
     validate_every: int = Field(
@@ -276,6 +276,7 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
                               loss_critic_type="l2", normalize_advantage=True)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=critic, average_gae=False)
     advantage.set_keys(reward=SCALED_REWARD)
+    clip_groups = _clip_groups(actor, critic, cfg)
     optimizer = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
     start_iteration, frames, history, validations, best = 0, 0, [], [], None
     checkpoint = Path(checkpoint)
@@ -314,7 +315,7 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
             data["next", SCALED_REWARD] = data["next", "reward"] * cfg.reward_scale
             losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg,
                                  train_actor=iteration > cfg.critic_warmup_iterations,
-                                 clip_groups=_clip_groups(actor, critic, cfg))
+                                 clip_groups=clip_groups)
             collector.update_policy_weights_()
             updated = time.perf_counter()
             # where an iteration's wall time goes: waiting for the collector's batch, then the learner
