@@ -292,3 +292,27 @@ def test_critic_warmup_leaves_the_actor_alone_and_target_kl_stops_the_epochs(fac
     second = result.history[1]
     assert second["actor_trained"] is True and second["epochs"] == 1 and second["kl_approx"] > 1e-12
     assert 0.0 <= second["clip_fraction"] <= 1.0
+
+
+def test_each_update_starts_from_the_policy_that_collected_its_batch(factory, tmp_path):
+    """The normaliser is the actor's first layer: with normalizer_update 'after_update' a batch's statistics enter it
+    after the batch's update, so every update starts from the collecting policy (kl_start ~ 0); the legacy
+    'before_update' moved the policy before the clip could bound it (kl_start > 0 once the actor has trained)."""
+    rows = {}
+    for mode in ("after_update", "before_update"):
+        cfg = PPOConfig(iterations=3, **TINY_PPO, normalizer_update=mode)
+        rows[mode] = train_ppo(factory, cfg, tmp_path / f"{mode}.pt").history
+    # the first batch sets the statistics before its update (the untrained mean ignores them, the state std barely)
+    assert rows["after_update"][0]["kl_start"] < 1e-3
+    assert all(row["kl_start"] < 1e-6 for row in rows["after_update"][1:])
+    assert all(row["kl_start"] > 1e-4 for row in rows["before_update"][1:])
+    state = load_checkpoint(tmp_path / "after_update.pt")
+    assert float(state["actor"]["module.0.module.0.count"]) == 300.0  # every batch still reaches the statistics
+
+
+def test_frozen_normaliser_statistics_stop_after_the_given_iterations(factory, tmp_path):
+    cfg = PPOConfig(iterations=3, **TINY_PPO, normalizer_frozen_after=1)
+    rows = train_ppo(factory, cfg, tmp_path / "frozen.pt").history
+    assert all(row["kl_start"] < 1e-5 for row in rows[1:])
+    state = load_checkpoint(tmp_path / "frozen.pt")
+    assert float(state["actor"]["module.0.module.0.count"]) == 100.0  # only the first batch

@@ -383,3 +383,29 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it(hand, library, rec
         finally:
             environment.close()
     assert np.array_equal(runs[0], runs[1])
+
+
+def test_action_repeat_holds_the_action_and_sums_the_reward(hand, library, record, tmp_path):
+    """action_repeat k: one policy step is k inner steps of the same action (same physics as k steps at 40 Hz), the
+    reward is their sum, and max_steps still counts inner steps, so the episode lasts as long."""
+    urdf = hand.export_urdf(tmp_path / "urdf")
+    action = torch.zeros(24)
+    action[20], action[3] = 0.3, 0.5  # lift a little, flex a joint
+    runs = {}
+    for repeat in (1, 4):
+        environment = LiftEnv(hand, library, urdf, [record], LiftEnvConfig(action_repeat=repeat, max_steps=8),
+                              PointNetEncoder(PointNetConfig()).eval())
+        td, rewards, states, dones = environment.reset(), [], [], []
+        for _ in range(8 // repeat):
+            td["action"] = action
+            td = environment.step(td)["next"]
+            rewards.append(float(td["reward"]))
+            states.append(environment.world.read().q.copy())
+            dones.append(bool(td["truncated"]))
+        environment.close()
+        runs[repeat] = (rewards, states, dones)
+    r1, s1, d1 = runs[1]
+    r4, s4, d4 = runs[4]
+    assert np.allclose(r4, [sum(r1[:4]), sum(r1[4:])], rtol=1e-5, atol=1e-6)
+    assert np.array_equal(s4[0], s1[3]) and np.array_equal(s4[1], s1[7])
+    assert d4 == [False, True] and d1[-1] and not any(d1[:-1])

@@ -289,3 +289,27 @@ def test_approach_stage_brings_contacts_closer_without_force_closure_and_runs_in
     assert "approach_seconds" in result.stats and torch.isfinite(result.energy).all()
     off = SynthesisConfig(batch_size=4, mala_steps=5, refine_steps=5)
     assert "approach_seconds" not in synthesize(hand, library, scene, off, torch.Generator().manual_seed(0)).stats
+
+
+def test_release_step_rule_is_the_official_gradient_step(hand, library):
+    """mala_step_rule 'release': x' = x - s^2/2 m g~ + s sigma xi, with the rotation gradient x10 and the joint
+    gradient over the EMA of its batch-mean |g| times w(t) (85 at t = 0, 25 from 80 % of the chain on)."""
+    from components.synthesis.pose import JOINTS, ROTATION, TRANSLATION
+
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), IDENTITY),))
+    cfg = SynthesisConfig(batch_size=4, mala_steps=100, mala_step_rule="release", langevin_noise=0.0, step_size=1.0,
+                          contact_switch_probability=0.0)
+    problem = GraspProblem.build(hand, SceneObjects(library, scene), cfg)
+    x, contacts = initial_poses(problem, torch.Generator().manual_seed(0))
+    annealer = Annealer(problem, x, contacts, torch.Generator().manual_seed(1))
+    g, s = annealer.state.grad, step_size_at(0, cfg)
+    x_new, _ = annealer.try_step()
+    step = (annealer.state.x - x_new) / (0.5 * s * s)
+    assert torch.allclose(step[:, TRANSLATION], g[:, TRANSLATION], rtol=1e-4, atol=1e-5)
+    assert torch.allclose(step[:, ROTATION], 10.0 * g[:, ROTATION], rtol=1e-4, atol=1e-5)
+    expected = g[:, JOINTS] / (g[:, JOINTS].abs().mean(0) + cfg.rmsprop_epsilon) * 85.0
+    assert torch.allclose(step[:, JOINTS], expected, rtol=1e-4, atol=1e-6)
+    annealer.step = 80
+    assert annealer.release_joint_weight() == pytest.approx(25.0)
+    annealer.step = 40
+    assert annealer.release_joint_weight() == pytest.approx(55.0)

@@ -94,6 +94,14 @@ class LiftEnvConfig(Section):
 
     # ------------------------------------------------------------------ episode
     max_steps: int = Field(100, ge=1, description="Environment steps per episode (2.5 s at 40 Hz); the episode is truncated after them.")
+    action_repeat: int = Field(
+        1, ge=1,
+        description="Environment steps each policy action is held for (1 = the policy acts at physics_hz / substeps, "
+        "40 Hz).  k > 1 makes the policy act at 40 / k Hz with everything else at 40 Hz: the grasp closure, the joint "
+        "target rate (joint_delta_rad per inner step), the feature period, max_steps (counted in inner steps, so an "
+        "episode lasts as long) and the reward (summed over the k inner steps; a fall ends the repeat).  What it is for: "
+        "PPO's Gaussian noise then holds each draw for k / 40 s, a temporally correlated exploration with exact "
+        "log-probabilities.  Scale ppo.gamma to gamma**k to keep the horizon in seconds.")
     fall_height_m: float = Field(
         -0.05,
         description="An object whose centre falls below this height (m, table top = 0) ends the episode (terminated). "

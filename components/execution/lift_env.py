@@ -162,18 +162,23 @@ class LiftEnv(EnvBase):
             action = action.numpy()
         except (RuntimeError, TypeError):
             action = action.detach().cpu().numpy()
-        state = self.world.step(action)
         ep = self.episode
+        period = self.cfg.feature_period
+        t0, reward, terminated, truncated = ep.t, 0.0, False, False
+        for _ in range(self.cfg.action_repeat):  # the action is held for action_repeat inner steps (LiftEnvConfig)
+            state = self.world.step(action)
+            ep.t += 1
+            terms = reward_terms(self.cfg, state, ep.goal, ep.start_heights)
+            reward += terms["reward"]
+            terminated = any(pos[2] < self.cfg.fall_height_m for pos in state.obj_pos_tuples)
+            truncated = ep.t >= self.cfg.max_steps
+            if terminated:  # as if the episode went on at the worst reward: dropping objects never pays
+                reward += (self.cfg.max_steps - ep.t) * ep.worst_step
+            if terminated or truncated:
+                break
         ep.last_action = self.world.last_action  # the action as applied, clipped to [-1, 1]
-        ep.t += 1
-        if ep.t % self.cfg.feature_period == 0:
+        if ep.t // period != t0 // period:  # an inner step reached a feature update (every feature_period steps)
             self._update_features(state)
-        terms = reward_terms(self.cfg, state, ep.goal, ep.start_heights)
-        terminated = any(pos[2] < self.cfg.fall_height_m for pos in state.obj_pos_tuples)
-        truncated = ep.t >= self.cfg.max_steps
-        reward = terms["reward"]
-        if terminated:  # as if the episode went on at the worst reward: dropping objects never pays
-            reward += (self.cfg.max_steps - ep.t) * ep.worst_step
         out = self._output(state, terms["lift"], reward, terminated, truncated)
         if self.run_type_checks:
             return TensorDict(out, batch_size=self.batch_size)

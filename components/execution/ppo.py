@@ -91,6 +91,23 @@ class PPOConfig(Section):
         "lr 3e-4 took the Syn-Pl success from its start's 9.2 % to 1.8 %, 0.05 at lr 1e-4 to 6.0 %, 0.05 at lr 3e-4 to "
         "1.0 % (the learning rate made the difference; 0.05 kept as the best measured setting).")
     normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
+    normalizer_frozen_after: Optional[int] = Field(
+        None, ge=1,
+        description="Stop updating the normaliser's statistics after this many iterations (None = never).  Each update "
+        "moves every later policy without PPO's clip (kl_start with 'before_update'; the same move lands on the next "
+        "batch's collecting policy with 'after_update'), and an observation entry that hardly varied early on is "
+        "divided by a tiny deviation once it does.  With std_mode 'independent' and critic_warmup_iterations >= this "
+        "value, the statistics settle while the actor is still exactly its start (zero mean rows), and afterwards only "
+        "PPO's steps move the policy, as torchrl's recipes with ObservationNorm.init_stats do.")
+    normalizer_update: Literal["after_update", "before_update"] = Field(
+        "after_update",
+        description="When a batch's observations enter the normaliser's statistics.  The normaliser is the actor's first "
+        "layer, so changing it changes the policy.  'after_update' (default since the thirty-second session): after "
+        "the batch's PPO update, so the update starts from the very policy that collected the batch (probability "
+        "ratios 1, kl_start 0) and the clip bounds the whole step; the first batch still sets the statistics before "
+        "its update (the untrained mean ignores them: its rows start at zero).  'before_update': the recipe until "
+        "then, where every update started from a policy the normaliser had already moved, outside the clip's control.  "
+        "The history's kl_start measures that move.")
     std_mode: Literal["state", "independent"] = Field(
         "state",
         description="How the actor's standard deviation is parametrised.  'state': a second output of the actor MLP "
@@ -310,12 +327,19 @@ def train_ppo(env_factory: Callable[[], EnvBase], cfg: PPOConfig, checkpoint: Pa
             collected = time.perf_counter()
             iteration += 1
             frames += data.numel()
-            if cfg.normalize_observations:
+            normalising = cfg.normalize_observations and (cfg.normalizer_frozen_after is None
+                                                          or iteration <= cfg.normalizer_frozen_after)
+            normalise_first = normalising and (cfg.normalizer_update == "before_update" or float(norm.count) == 0.0)
+            if normalise_first:
                 norm.update(data["observation"])
+            kl_start = policy_kl(actor, data)  # how far the update's starting policy is from the collecting one
             data["next", SCALED_REWARD] = data["next", "reward"] * cfg.reward_scale
             losses = _ppo_update(data, advantage, loss_module, optimizer, buffer, cfg,
                                  train_actor=iteration > cfg.critic_warmup_iterations,
                                  clip_groups=clip_groups)
+            if normalising and not normalise_first:
+                norm.update(data["observation"])  # the next batch is collected with these statistics
+            losses["kl_start"] = kl_start
             collector.update_policy_weights_()
             updated = time.perf_counter()
             # where an iteration's wall time goes: waiting for the collector's batch, then the learner

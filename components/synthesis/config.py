@@ -246,6 +246,26 @@ class SynthesisConfig(Section):
         description="Keep the squared-gradient EMA per candidate (B, D) instead of averaged over the batch (D,) as in "
         "DexGraspNet: every candidate then moves at the step size whatever the scale of its own gradient.")
     rmsprop_epsilon: float = Field(1e-6, gt=0.0, description="Added to sqrt(EMA of grad^2) before dividing the gradient.")
+    mala_step_rule: Literal["rmsprop", "release"] = Field(
+        "rmsprop",
+        description="How a MALA proposal moves the pose (optimizer module docstring).  'rmsprop': DexGraspNet's "
+        "preconditioned step of size s_t per coordinate, x' = x - s k g / (sqrt(v) + eps) + s k sigma xi, whatever "
+        "the gradient's scale.  'release': the official MultiGrasp run.py's step, x' = x - s^2 / 2 m g~ + s sigma xi: "
+        "plain gradient steps that shrink with the gradient near a minimum, the rotation gradient times "
+        "release_rotation_gradient_scale, the joint gradient divided by the EMA (decay rmsprop_decay) of its "
+        "batch-mean |g| and times a weight falling linearly from release_joint_weight_start to "
+        "release_joint_weight_end over the first release_joint_weight_fraction of the chain (official 85 -> 25 over "
+        "0.8; the release's noise is sigma = 0.01).  step_scale_* do not apply to it.")
+    release_rotation_gradient_scale: float = Field(
+        10.0, gt=0.0, description="'release' step rule: multiplier of the 6-D rotation gradient (official: 10).")
+    release_joint_weight_start: float = Field(
+        85.0, gt=0.0, description="'release' step rule: joint-gradient weight at the chain's start (official: 85).")
+    release_joint_weight_end: float = Field(
+        25.0, gt=0.0, description="'release' step rule: joint-gradient weight from release_joint_weight_fraction of the "
+        "chain on (official: 25).")
+    release_joint_weight_fraction: float = Field(
+        0.8, gt=0.0, le=1.0, description="'release' step rule: fraction of the MALA chain over which the joint weight "
+        "falls (official: 0.8).")
     langevin_noise: float = Field(
         0.1, ge=0.0,
         description="Standard deviation of the Gaussian noise of a proposal, as a fraction of the current step size.")

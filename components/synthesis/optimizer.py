@@ -7,7 +7,9 @@ MultiGrasp schedule.  One step t, for every row b of the batch:
    with g = grad_x E(x, c) at the current state, v the EMA (decay ``rmsprop_decay``) of g^2 per parameter,
    averaged over the batch as in DexGraspNet (or per row with ``rmsprop_per_row``) -- RMSProp
    preconditioning --, k the per-group multiplier (translation / rotation / joints) and
-   sigma = ``langevin_noise``;
+   sigma = ``langevin_noise``.  With ``mala_step_rule='release'`` instead the official release's
+   x' = x - s_t^2 / 2 * m * g~ + s_t * sigma * xi (plain gradient steps; rotation gradient x 10, joint gradient
+   normalised by the EMA of its batch-mean |g| and weighted 85 -> 25; :meth:`Annealer._release_direction`);
 2. contacts  c': with probability ``contact_switch_probability`` one random contact of every object
    (``contact_switch_mode='per_step'``, the official MultiGrasp rule) or each contact independently
    (``'per_contact'``, DexGraspNet's rule) moves to a uniformly drawn candidate used by no contact of the
@@ -197,6 +199,7 @@ class Annealer:
         self.scale[TRANSLATION] = self.cfg.step_scale_translation
         self.scale[ROTATION] = self.cfg.step_scale_rotation
         self.scale[JOINTS] = self.cfg.step_scale_joints
+        self.joint_abs_ema: Optional[Tensor] = None  # (D_q,) EMA of the batch-mean |joint gradient| ('release' rule)
         self.step = 0
         self._proposal: Optional[tuple[Tensor, Tensor]] = None
 
@@ -209,11 +212,14 @@ class Annealer:
         cfg, state = self.cfg, self.state
         s = step_size_at(self.step, cfg)
         decay = cfg.rmsprop_decay
-        self.grad_sq_ema = decay * self.grad_sq_ema + (1.0 - decay) * self._grad_sq(state.grad)
-        precond = state.grad / (self.grad_sq_ema.sqrt() + cfg.rmsprop_epsilon)  # (B, D)
         noise = torch.randn(state.x.shape, generator=self.generator, dtype=state.x.dtype,
                             device=self.generator.device).to(state.x.device)
-        x_new = state.x - s * self.scale * precond + s * self.scale * cfg.langevin_noise * noise
+        if cfg.mala_step_rule == "release":
+            x_new = state.x - 0.5 * s * s * self._release_direction() + s * cfg.langevin_noise * noise
+        else:
+            self.grad_sq_ema = decay * self.grad_sq_ema + (1.0 - decay) * self._grad_sq(state.grad)
+            precond = state.grad / (self.grad_sq_ema.sqrt() + cfg.rmsprop_epsilon)  # (B, D)
+            x_new = state.x - s * self.scale * precond + s * self.scale * cfg.langevin_noise * noise
         if cfg.contact_assignment == "nearest":  # the energy chooses the contacts from the pose
             contacts_new = state.contacts
         else:
@@ -223,6 +229,29 @@ class Annealer:
                                            candidate_allowed=self.problem.candidate_allowed)
         self._proposal = (x_new, contacts_new)
         return x_new, contacts_new
+
+    def release_joint_weight(self) -> float:
+        """w(t) of the 'release' step rule: release_joint_weight_start falling linearly to release_joint_weight_end
+        at release_joint_weight_fraction of the chain, constant afterwards."""
+        cfg = self.cfg
+        span = cfg.release_joint_weight_fraction * cfg.mala_steps
+        left = max(span - self.step, 0.0) / span if span > 0 else 0.0
+        return cfg.release_joint_weight_end + (cfg.release_joint_weight_start - cfg.release_joint_weight_end) * left
+
+    def _release_direction(self) -> Tensor:
+        """m * g~ of the 'release' step rule (SynthesisConfig.mala_step_rule): the translation gradient as is, the
+        rotation gradient times release_rotation_gradient_scale, the joint gradient over the EMA of its batch-mean
+        |g| (per joint, decay rmsprop_decay, started at the first gradient) times w(t).  (B, D)."""
+        cfg, grad = self.cfg, self.state.grad
+        joint_abs = grad[:, JOINTS].abs().mean(0)  # (D_q,)
+        if self.joint_abs_ema is None:
+            self.joint_abs_ema = joint_abs
+        else:
+            self.joint_abs_ema = cfg.rmsprop_decay * self.joint_abs_ema + (1.0 - cfg.rmsprop_decay) * joint_abs
+        direction = grad.clone()
+        direction[:, ROTATION] = grad[:, ROTATION] * cfg.release_rotation_gradient_scale
+        direction[:, JOINTS] = grad[:, JOINTS] / (self.joint_abs_ema + cfg.rmsprop_epsilon) * self.release_joint_weight()
+        return direction
 
     def _guide_log_weights(self) -> Optional[Tensor]:
         """log w[b, j, k] = -|d_j(candidate k of row b)| / ``contact_switch_guide_scale_m``: guided switches favour
