@@ -3,7 +3,10 @@
 Defaults are the official MultiGrasp values where the release has them (energy weights 1 / 10 / 10 / 10,
 batch 1024, 6500 MALA steps with step 0.01 * 0.95^floor(t/100) and temperature 8 * 0.95^floor(t/50),
 contact switch probability 0.25, 1500 Adam refinement steps, filter FC < 0.25, contact distance < 5 mm,
-penetration < 5 mm, prior < 0.1).  Every other number is a documented choice of this project.
+penetration < 5 mm, prior < 0.1).  Every other number is a documented choice of this project; three defaults
+differ from the release on purpose and their fields say so: ``fc_friction`` 0.5 (the release: frictionless),
+``fc_normalize_by_radius`` True (raw lever arms in metres) and ``w_align`` 1 (computed, never added); and the MALA
+step is DexGraspNet's RMSProp step unless ``mala_step_rule='release'``.
 """
 
 from typing import Literal, Optional
