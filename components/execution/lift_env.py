@@ -8,7 +8,8 @@ An episode starts from the pre-grasp of one :class:`GraspRecord` (hand and objec
 them, at rest; drawn at random or in turn, ``record_order``), closed on the objects by the grasp closure
 (:mod:`components.execution.closure`, ``closure_steps`` > 0; the goals, start heights and step count start
 after it), then each step applies a 24-D action in
-[-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps.  Output keys:
+[-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps, held for ``action_repeat``
+such env steps (their rewards summed; 1 by default).  Output keys:
 
 * ``observation`` (D,) float32 -- :mod:`components.execution.observations` (998 entries for 2 objects);
 * ``reward`` (1,) -- :func:`components.execution.observations.reward_terms`; on the step an object falls, plus
