@@ -48,7 +48,8 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
 
     if threads:
         torch.set_num_threads(threads)
-    stage = load_config(profile, None, [f"generator.{item}" for item in sets]).generator
+    full = load_config(profile, None, [f"generator.{item}" for item in sets])
+    stage = full.generator
     cfg, sampler, ik, refine = GeneratorConfig(), stage.sampler, stage.ik, stage.refine
     hand = HandModel(HandConfig(), device=device)
     model = build_generator(cfg).to(device).eval()
@@ -75,7 +76,8 @@ def run_generation_benchmark(repeats: int = 3, threads: int = 0, device: str = "
             t1 = time.perf_counter()
             p, R, q = from_representation(hand, x, cfg.representation, ik)
             t2 = time.perf_counter()
-            refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), refine)
+            refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), refine,
+                          synthesis=full.synthesis.optimizer_for(len(scene.objects)))
             t3 = time.perf_counter()
             times["sample_s"].append(t1 - t0)
             times["ik_s"].append(t2 - t1)

@@ -39,7 +39,8 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
     metrics, refine = cfg.synthesis.metrics, cfg.generator.refine
     values = {key: np.zeros(len(frame)) for key in ("q1_before", "pn_before", "q1_after", "pn_after")}
     for number, (rows, objects, p, R, q) in enumerate(scene_batches(frame, hand, library), 1):
-        out = refine_grasps(hand, objects, p, R, q, refine)
+        out = refine_grasps(hand, objects, p, R, q, refine,
+                            synthesis=cfg.synthesis.optimizer_for(objects.n_objects))
         for tag, (pp, RR, qq) in (("before", (p, R, q)), ("after", (out.p, out.R, out.q))):
             values[f"q1_{tag}"][rows] = q1_grasps(hand, objects, pp, RR, qq, metrics)[0].numpy()
             values[f"pn_{tag}"][rows] = penetration_depth(hand, objects, pp, RR, qq, metrics).pn_mm.detach().cpu().numpy()

@@ -115,7 +115,8 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
                                           yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen,
                                           sampler=stage.sampler, distance=lambda x: objects.sdf(x).amin(-1),
                                           table_height=objects.table_height)
-            refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine)
+            refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine,
+                                   synthesis=cfg.synthesis.optimizer_for(len(scene.objects)))
             seconds += time.perf_counter() - start
             q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
             pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm

@@ -88,7 +88,8 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
                                   sampler=stage.sampler, distance=lambda x: scene_objects.sdf(x).amin(-1),
                                   table_height=scene_objects.table_height)
     t1 = time.perf_counter()
-    refined = refine_grasps(hand, scene_objects, p.detach(), R.detach(), q.detach(), stage.refine)
+    refined = refine_grasps(hand, scene_objects, p.detach(), R.detach(), q.detach(), stage.refine,
+                           synthesis=cfg.synthesis.optimizer_for(len(scene.objects)))
     t2 = time.perf_counter()
     folder = cfg.run.workdir / "results" / "generated" / f"{'+'.join(scene.names)}-{seed}"
     atomic_write_json(folder / "scene.json", scene.to_dict())

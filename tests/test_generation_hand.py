@@ -136,3 +136,36 @@ def test_refinement_lowers_the_penetration_of_a_hand_pressed_into_a_sphere(hand3
     assert bool((result.depth_before > 0.002).all())
     assert bool((result.depth_after < 0.5 * result.depth_before).all())
     assert bool((result.energy_after < result.energy_before).all())
+
+
+def _assigned_contact_distances(hand: HandModel, objects: SceneObjects, result) -> torch.Tensor:
+    """|d| (B, C) of the contacts nearest_contacts assigns to the first object at the refined poses."""
+    from components.synthesis import SynthesisConfig
+    from components.synthesis.energy import GraspProblem, nearest_contacts
+
+    problem = GraspProblem.build(hand, objects, SynthesisConfig())
+    with torch.no_grad():
+        points, normals = hand.contact_candidates_and_normals(result.p, result.R, result.q)
+        contacts = nearest_contacts(problem, points, normals)
+        return objects.sdf(points)[..., 0].gather(1, contacts[:, 0, :]).abs()
+
+
+def test_force_closure_refinement_pulls_the_contacts_the_paper_refinement_leaves(hand32, library):
+    """fc_steps runs the synthesis refinement after the paper's: the paper's objective backs a pressed hand out of
+    the sphere and leaves the fingers where they were; the synthesis energy's E_dist pulls the assigned contacts in."""
+    from components.synthesis import SynthesisConfig
+
+    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), (0.0, 0.0, 0.0, 1.0)),))
+    objects = SceneObjects(library, scene)
+    R = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).expand(2, 3, 3)
+    palm_face = R[0] @ torch.tensor([0.011, -0.0111, 0.038])
+    p = torch.stack([torch.tensor([0.0, 0.0, 2 * SPHERE_RADIUS - sink]) - palm_face for sink in (0.003, 0.005)])
+    q = hand32.open_pose().expand(2, -1)
+    synthesis = SynthesisConfig()
+    paper = refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=30), synthesis=synthesis)
+    both = refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=30, fc_steps=100), synthesis=synthesis)
+    assert bool((both.depth_after < 0.5 * both.depth_before).all())
+    before, after = _assigned_contact_distances(hand32, objects, paper), _assigned_contact_distances(hand32, objects, both)
+    assert bool((after.sum(-1) < 0.75 * before.sum(-1)).all())
+    with pytest.raises(ValueError, match="fc_steps"):
+        refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=1, fc_steps=1))

@@ -11,7 +11,7 @@ and §"Multi-object Grasp Refinement").
 Numbers that are not the paper's are documented choices of this project.
 """
 
-from typing import Literal
+from typing import Literal, Optional
 
 from pydantic import Field, PositiveInt, model_validator
 
@@ -203,6 +203,22 @@ class RefineConfig(Section):
     object_surface_points: int = Field(256, ge=1, description="Object surface samples tested against the hand SDF.")
     hand_point_spacing_m: float = Field(0.01, gt=0.0, description="Spacing (m) of the hand surface samples tested against the objects.")
     keep_best: bool = Field(True, description="Return, per grasp, the pose of lowest E_g seen.")
+    fc_steps: int = Field(
+        0, ge=0,
+        description="Force-closure refinement after the paper's (0 = off, the paper's objective only): Adam steps on "
+        "the synthesis energy E = w_fc E_fc + w_dist E_dist + w_pen E_pen + w_prior E_prior of the run's "
+        "synthesis.optimizer (its weights, refine_lr, refine_w_dist, keep_best and contact reassignment), each "
+        "object's contacts first assigned at the refined pose to the nearest candidates of distinct fingers. Pulls the "
+        "chosen fingertips onto the surfaces and into opposition, which the paper's tau-band pull does not.")
+    fc_w_pen: Optional[float] = Field(
+        None, ge=0.0,
+        description="w_pen of the force-closure refinement (None = synthesis.optimizer.w_pen). The synthesis filters "
+        "out its penetrating candidates; generated grasps are not filtered, so a stiffer E_pen stands in for it.")
+    fc_lr: Optional[float] = Field(None, gt=0.0, description="Adam lr of the force-closure refinement (None = synthesis.optimizer.refine_lr).")
+    fc_order: Literal["after", "before"] = Field(
+        "after",
+        description="When the force-closure refinement runs: 'after' the paper's steps, or 'before' them (the paper's "
+        "objective then removes the penetration the synthesis energy leaves).")
 
     @model_validator(mode="after")
     def _check(self) -> "RefineConfig":

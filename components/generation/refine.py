@@ -14,6 +14,15 @@
 * E_prior: joint-limit violation; the joints are also clamped to their limits after every step.
 
 Batched Adam on x = (p, rot6d, q) (:mod:`components.synthesis.pose`).
+
+Optional second stage, force-closure refinement (``RefineConfig.fc_steps`` > 0; :func:`force_closure_refinement`):
+the paper's objective only pulls hand points already within tau, so a sample that sits inside the objects is
+backed out until nothing touches.  This stage runs the synthesis refinement
+(:func:`components.synthesis.optimizer.refine`: Adam on the synthesis energy w_fc E_fc + w_dist E_dist +
+w_pen E_pen + w_prior E_prior of the run's ``synthesis.optimizer``) for ``fc_steps`` steps, with each object's
+``contacts_per_object`` contacts first assigned at the pose to the nearest candidates on distinct fingers
+(:func:`components.synthesis.energy.nearest_contacts`) and then reassigned as the synthesis does.  It is the
+synthesis' last stage seeded by the generator instead of the annealed chain.
 """
 
 from __future__ import annotations
@@ -29,7 +38,7 @@ from torch import Tensor
 from components.generation.config import RefineConfig
 from components.hand import HandModel
 from components.synthesis.config import SynthesisConfig
-from components.synthesis.energy import GraspProblem, penetration_energy
+from components.synthesis.energy import GraspProblem, nearest_contacts, penetration_energy
 from components.synthesis.pose import pack, unpack
 from components.synthesis.scene_objects import SceneObjects
 
@@ -86,17 +95,49 @@ class RefineResult:
     seconds: float
 
 
+def force_closure_refinement(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: Tensor,
+                             synthesis: SynthesisConfig, cfg: RefineConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """The synthesis refinement seeded by the given poses (module docstring, second stage): contacts from
+    :func:`~components.synthesis.energy.nearest_contacts` at the pose, then
+    :func:`components.synthesis.optimizer.refine` with ``synthesis`` and ``refine_steps = cfg.fc_steps`` (w_pen and
+    refine_lr replaced by ``cfg.fc_w_pen`` / ``cfg.fc_lr`` when set).
+    p (B, 3), R (B, 3, 3), q (B, 22) -> refined (p, R, q)."""
+    from components.synthesis.optimizer import refine
+
+    update = {"refine_steps": cfg.fc_steps}
+    if cfg.fc_w_pen is not None:
+        update["w_pen"] = cfg.fc_w_pen
+    if cfg.fc_lr is not None:
+        update["refine_lr"] = cfg.fc_lr
+    problem = GraspProblem.build(hand, objects, synthesis.model_copy(update=update))
+    x = pack(p, R, q).to(hand.dtype).detach()
+    with torch.no_grad():
+        points, normals = hand.contact_candidates_and_normals(p, R, problem.effective_joints(q))
+        contacts = nearest_contacts(problem, points, normals)
+    x, _, _ = refine(problem, x, contacts)
+    p1, R1, q1 = unpack(x)
+    return p1, R1, problem.effective_joints(q1)
+
+
 def refine_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, q: Tensor, cfg: RefineConfig,
-                  progress: Optional[ProgressFn] = None, problem: Optional[GraspProblem] = None) -> RefineResult:
+                  progress: Optional[ProgressFn] = None, problem: Optional[GraspProblem] = None,
+                  synthesis: Optional[SynthesisConfig] = None) -> RefineResult:
     """Adam on x = (p, rot6d, q) for ``cfg.steps`` with tau_at(k) (module docstring); joints clamped to the limits
     after each step; with ``keep_best`` each row returns its lowest-E_g pose (evaluated at that step's tau).
+    When ``cfg.fc_steps`` > 0, :func:`force_closure_refinement` with ``synthesis`` (the run's
+    ``synthesis.optimizer`` for this many objects; required then) runs after these steps, or before them with
+    ``fc_order='before'`` (the paper's objective then takes out the penetration the synthesis energy leaves).
     p (B, 3), R (B, 3, 3), q (B, 22) -> :class:`RefineResult`."""
+    if cfg.fc_steps > 0 and synthesis is None:
+        raise ValueError("refine.fc_steps > 0 needs the run's synthesis settings (refine_grasps(..., synthesis=...))")
     start = time.perf_counter()
     problem = problem if problem is not None else refinement_problem(hand, objects, cfg)
     lower, upper = hand.joint_limits.unbind(-1)
     x = pack(p, R, q).to(hand.dtype).detach().clone()
     with torch.no_grad():
         e0, t0 = refinement_energy(problem, x, cfg.tau_start_m, cfg)
+    if cfg.fc_steps > 0 and cfg.fc_order == "before":
+        x = pack(*force_closure_refinement(hand, objects, *unpack(x), synthesis, cfg)).to(x.dtype).clone()
     x.requires_grad_(True)
     optimiser = torch.optim.Adam([x], lr=cfg.lr)
     best_x, best_e = x.detach().clone(), torch.full_like(e0, float("inf"))
@@ -119,6 +160,9 @@ def refine_grasps(hand: HandModel, objects: SceneObjects, p: Tensor, R: Tensor, 
         e, _ = refinement_energy(problem, x, cfg.tau_end_m, cfg)
         if cfg.keep_best and cfg.steps > 0:
             x = torch.where((e < best_e).unsqueeze(-1), x, best_x)
+    if cfg.fc_steps > 0 and cfg.fc_order == "after":
+        x = pack(*force_closure_refinement(hand, objects, *unpack(x), synthesis, cfg)).to(x.dtype)
+    with torch.no_grad():
         e1, t1 = refinement_energy(problem, x, cfg.tau_end_m, cfg)
     p1, R1, q1 = unpack(x)
     return RefineResult(p=p1, R=R1, q=problem.effective_joints(q1), energy_before=e0, energy_after=e1,
