@@ -31,7 +31,7 @@ GENERATOR_ABLATIONS: dict[str, dict[str, Any]] = {
     "Ours": {},
     "Joint Angles": {"generator.model.representation": "joints"},
     "w/o Obj Embd": {"generator.model.use_object_embedding": False},
-    "w/o Refinement": {"generator.refine.steps": 0},
+    "w/o Refinement": {"generator.refine.steps": 0, "generator.refine.fc_steps": 0},
 }
 
 

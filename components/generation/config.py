@@ -207,7 +207,8 @@ class RefineConfig(Section):
         0, ge=0,
         description="Force-closure refinement after the paper's (0 = off, the paper's objective only): Adam steps on "
         "the synthesis energy E = w_fc E_fc + w_dist E_dist + w_pen E_pen + w_prior E_prior of the run's "
-        "synthesis.optimizer (its weights, refine_lr, refine_w_dist, keep_best and contact reassignment), each "
+        "synthesis.optimizer (its weights, refine_lr, refine_w_dist, keep_best and contact reassignment; E_pen sampled "
+        "with this section's object_surface_points / hand_point_spacing_m), each "
         "object's contacts first assigned at the refined pose to the nearest candidates of distinct fingers. Pulls the "
         "chosen fingertips onto the surfaces and into opposition, which the paper's tau-band pull does not.")
     fc_w_pen: Optional[float] = Field(

@@ -99,12 +99,14 @@ def force_closure_refinement(hand: HandModel, objects: SceneObjects, p: Tensor, 
                              synthesis: SynthesisConfig, cfg: RefineConfig) -> tuple[Tensor, Tensor, Tensor]:
     """The synthesis refinement seeded by the given poses (module docstring, second stage): contacts from
     :func:`~components.synthesis.energy.nearest_contacts` at the pose, then
-    :func:`components.synthesis.optimizer.refine` with ``synthesis`` and ``refine_steps = cfg.fc_steps`` (w_pen and
-    refine_lr replaced by ``cfg.fc_w_pen`` / ``cfg.fc_lr`` when set).
+    :func:`components.synthesis.optimizer.refine` with ``synthesis`` and ``refine_steps = cfg.fc_steps``, E_pen sampled
+    as the paper's stage samples it (``cfg.object_surface_points``, ``cfg.hand_point_spacing_m``), w_pen and refine_lr
+    replaced by ``cfg.fc_w_pen`` / ``cfg.fc_lr`` when set.
     p (B, 3), R (B, 3, 3), q (B, 22) -> refined (p, R, q)."""
     from components.synthesis.optimizer import refine
 
-    update = {"refine_steps": cfg.fc_steps}
+    update = {"refine_steps": cfg.fc_steps, "object_surface_points": cfg.object_surface_points,
+              "hand_point_spacing_m": cfg.hand_point_spacing_m}
     if cfg.fc_w_pen is not None:
         update["w_pen"] = cfg.fc_w_pen
     if cfg.fc_lr is not None:
