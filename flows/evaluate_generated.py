@@ -59,6 +59,38 @@ def _progress_line(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
+def generate_for_scene(cfg: PipelineConfig, model, hand, library, record: dict[str, Any], number: int):
+    """``generator.eval_grasps_per_scene`` grasps for one scene record of the ``scenes`` stage: palm yaws and noise
+    seeded by (``run.seed``, ``number``), sampling, IK and the refinement of ``cfg.generator`` (with the run's
+    synthesis settings for the force-closure stage).  -> (SceneObjects, RefineResult, seconds of generation, IK and
+    refinement)."""
+    import torch
+
+    from components.generation import generate_grasps, posed_clouds, refine_grasps
+    from components.objects import Scene
+    from components.synthesis import SceneObjects
+
+    stage = cfg.generator
+    scene = Scene.from_dict(record["scene"])
+    positions = np.array([pl.position for pl in scene.objects])
+    quats = np.array([pl.quat_xyzw for pl in scene.objects])
+    clouds, mask = posed_clouds(library, scene.names, positions, quats, stage.model.points_per_object,
+                                stage.model.max_objects)
+    n = stage.eval_grasps_per_scene
+    gen = torch.Generator().manual_seed(cfg.run.seed * 7919 + number)
+    yaws = torch.rand(n, generator=gen) * 2.0 * math.pi
+    objects = SceneObjects(library, scene, hand.device, hand.dtype)
+    start = time.perf_counter()
+    with torch.no_grad():
+        p, R, q = generate_grasps(model, hand, torch.as_tensor(clouds, dtype=torch.float32)[None].expand(n, -1, -1, -1),
+                                  yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen,
+                                  sampler=stage.sampler, distance=lambda x: objects.sdf(x).amin(-1),
+                                  table_height=objects.table_height)
+    refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine,
+                            synthesis=cfg.synthesis.optimizer_for(len(scene.objects)))
+    return objects, refined, time.perf_counter() - start
+
+
 def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint: Path | None = None,
                    progress: Callable[[str], None] | None = _progress_line
                    ) -> tuple[list[dict[str, Any]], dict[str, str]]:
@@ -67,13 +99,11 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     ``pn_before_refine_mm``, the mean deepest penetration of the raw samples (after IK, before refinement).
     ``progress`` gets one line per scene (setting, scene k/n, elapsed, ETA; stderr by default)."""
     import pandas as pd
-    import torch
 
-    from components.generation import generate_grasps, load_generator, posed_clouds, refine_grasps
+    from components.generation import load_generator
     from components.hand import HandModel
     from components.metrics import penetration_depth, q1_grasps
-    from components.objects import ObjectLibrary, Scene
-    from components.synthesis import SceneObjects
+    from components.objects import ObjectLibrary
     from flows.evaluate import Setting, setting_row
     from flows.pipeline import stage_output
     from tasks.preflight import cache_dir
@@ -100,24 +130,9 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     for name, split, picked in plan:
         frame_rows, seconds = [], 0.0
         for number, record in enumerate(picked):
-            scene = Scene.from_dict(record["scene"])
-            positions = np.array([pl.position for pl in scene.objects])
-            quats = np.array([pl.quat_xyzw for pl in scene.objects])
-            clouds, mask = posed_clouds(library, scene.names, positions, quats, stage.model.points_per_object,
-                                        stage.model.max_objects)
+            objects, refined, elapsed = generate_for_scene(cfg, model, hand, library, record, number)
             n = stage.eval_grasps_per_scene
-            gen = torch.Generator().manual_seed(cfg.run.seed * 7919 + number)
-            yaws = torch.rand(n, generator=gen) * 2.0 * math.pi
-            objects = SceneObjects(library, scene, hand.device, hand.dtype)
-            start = time.perf_counter()
-            with torch.no_grad():
-                p, R, q = generate_grasps(model, hand, torch.as_tensor(clouds, dtype=torch.float32)[None].expand(n, -1, -1, -1),
-                                          yaws, stage.ik, torch.as_tensor(mask)[None].expand(n, -1), generator=gen,
-                                          sampler=stage.sampler, distance=lambda x: objects.sdf(x).amin(-1),
-                                          table_height=objects.table_height)
-            refined = refine_grasps(hand, objects, p.detach(), R.detach(), q.detach(), stage.refine,
-                                   synthesis=cfg.synthesis.optimizer_for(len(scene.objects)))
-            seconds += time.perf_counter() - start
+            seconds += elapsed
             q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
             pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
             for i in range(n):

@@ -197,3 +197,24 @@ def test_a_longer_training_continues_the_finished_shorter_one(trained):
                 if m is not None and m.key not in (short.key, extended.key)]
     assert fresh.meta["extended_from"] == "" and fresh.meta["resumed_from"] == 0
     assert fresh.meta["data"] != extended.meta["data"] == short.meta["data"]
+
+
+def test_generated_table_reads_like_a_synthesis_table(trained, tmp_path, capsys):
+    """benchmarks.generated_table writes generated, refined grasps with the synthesis table's columns, so the lift
+    tools read them (records_from_table) and the grasp-table reader serves them."""
+    from benchmarks.generated_table import main as table_main
+    from benchmarks.grasp_tables import read_accepted
+    from tasks.specialists import records_from_table
+
+    _, base, _, _ = trained
+    out, summary = tmp_path / "gen.parquet", tmp_path / "gen.json"
+    argv = [*base, "--set", "generator.eval_grasps_per_scene=2", "--set", "generator.refine.fc_steps=2",
+            "--split", "Geo", "--scenes", "1", "--out", str(out), "--json", str(summary)]
+    assert table_main(argv) == 0
+    frame = read_accepted(out, "Geo", 10)
+    assert len(frame) == 2 and json.loads(summary.read_text())["n"] == 2
+    records = records_from_table(frame)
+    assert records[0].R.shape == (3, 3) and records[0].q.shape == (22,)
+    assert [o.name for o in records[0].scene.objects] == list(frame.iloc[0]["object_names"])
+    assert table_main([*argv, "--checkpoint", str(tmp_path / "missing.pt")]) == 2
+    assert "is not a file" in capsys.readouterr().err
