@@ -123,15 +123,19 @@ def test_contact_energy_counts_only_points_within_tau_and_tau_decreases_linearly
     assert tau_at(5, 11, cfg) == pytest.approx(0.0015)
 
 
-def test_refinement_lowers_the_penetration_of_a_hand_pressed_into_a_sphere(hand32, library):
+def hand_pressed_into_a_sphere(hand: HandModel, library):
+    """A sphere on the table and two open hands pressed into its top: palm facing down (palm normal -R e_y = -z),
+    fingers along +x, the palmar face centre (palm frame (0.011, -0.0111, 0.038)) 3 / 5 mm below the top.
+    -> (SceneObjects, p (2, 3), R (2, 3, 3), q (2, 22))."""
     scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), (0.0, 0.0, 0.0, 1.0)),))
-    objects = SceneObjects(library, scene)
-    # palm facing down (palm normal -R e_y = -z), fingers along +x; the palmar face centre (palm frame
-    # (0.011, -0.0111, 0.038)) put 3 / 5 mm below the top of the sphere
     R = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).expand(2, 3, 3)
     palm_face = R[0] @ torch.tensor([0.011, -0.0111, 0.038])
     p = torch.stack([torch.tensor([0.0, 0.0, 2 * SPHERE_RADIUS - sink]) - palm_face for sink in (0.003, 0.005)])
-    q = hand32.open_pose().expand(2, -1)
+    return SceneObjects(library, scene), p, R, hand.open_pose().expand(2, -1)
+
+
+def test_refinement_lowers_the_penetration_of_a_hand_pressed_into_a_sphere(hand32, library):
+    objects, p, R, q = hand_pressed_into_a_sphere(hand32, library)
     result = refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=30, lr=5e-4))
     assert bool((result.depth_before > 0.002).all())
     assert bool((result.depth_after < 0.5 * result.depth_before).all())
@@ -155,12 +159,7 @@ def test_force_closure_refinement_pulls_the_contacts_the_paper_refinement_leaves
     the sphere and leaves the fingers where they were; the synthesis energy's E_dist pulls the assigned contacts in."""
     from components.synthesis import SynthesisConfig
 
-    scene = Scene(objects=(Placement("sphere", (0.0, 0.0, SPHERE_RADIUS), (0.0, 0.0, 0.0, 1.0)),))
-    objects = SceneObjects(library, scene)
-    R = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).expand(2, 3, 3)
-    palm_face = R[0] @ torch.tensor([0.011, -0.0111, 0.038])
-    p = torch.stack([torch.tensor([0.0, 0.0, 2 * SPHERE_RADIUS - sink]) - palm_face for sink in (0.003, 0.005)])
-    q = hand32.open_pose().expand(2, -1)
+    objects, p, R, q = hand_pressed_into_a_sphere(hand32, library)
     synthesis = SynthesisConfig()
     paper = refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=30), synthesis=synthesis)
     both = refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=30, fc_steps=100), synthesis=synthesis)

@@ -1,5 +1,9 @@
 """Control: the force-closure refinement from the synthesis' random initial poses instead of generated ones
-(same 3 mini Pl scenes, 32 each, w_pen 1000, 400 steps)."""
+(same 3 mini Pl scenes, 32 each, w_pen 1000, 400 steps).
+
+    python benchmarks/results/generation_fc_refine/control_random_init.py WORKDIR OUT.json
+
+WORKDIR: a mini run's work dir with its scenes stage (run from the repository root)."""
 import json, sys, time, torch
 from pathlib import Path
 from flows.config import load_config
@@ -16,7 +20,7 @@ from components.metrics import penetration_depth, q1_grasps
 from tasks.preflight import cache_dir
 from tasks.synthesize import read_scene_records
 torch.set_num_threads(2)
-cfg = load_config("mini", None, ["run.workdir=/work/s33/mini"])
+cfg = load_config("mini", None, [], workdir=Path(sys.argv[1]))
 hand = HandModel(cfg.hand); library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
 records = [r for r in read_scene_records(stage_output(cfg, "scenes")) if r["split"] == "Pl"][:3]
 rc = RefineConfig(steps=0, fc_steps=400, fc_w_pen=1000)
@@ -32,4 +36,4 @@ for number, record in enumerate(records):
     pn = penetration_depth(hand, objects, p, R, q, cfg.synthesis.metrics).pn_mm
     q1s += q1.tolist(); pns += pn.tolist(); print(number, time.time() - t, float(q1.mean()), float(pn.mean()), file=sys.stderr)
 out = {"what": __doc__, "n": len(q1s), "q1": sum(q1s) / len(q1s), "pn_mm": sum(pns) / len(pns)}
-print(json.dumps(out)); json.dump(out, open(sys.argv[1], "w"), indent=1)
+print(json.dumps(out)); json.dump(out, open(sys.argv[2], "w"), indent=1)
