@@ -8,7 +8,7 @@ from pathlib import Path
 from prefect import flow
 
 from components.execution.clustering import assign_bins
-from components.execution.ppo import EXTENDABLE_FIELDS
+from components.execution.ppo_config import EXTENDABLE_FIELDS
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,

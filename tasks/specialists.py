@@ -37,7 +37,7 @@ from components.errors import MultigraspError
 from components.execution.clustering import ClusteringConfig
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import GraspRecord
-from components.execution.ppo import EXTENDABLE_FIELDS, PPOConfig
+from components.execution.ppo_config import EXTENDABLE_FIELDS, PPOConfig
 from components.objects import Scene
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json, atomic_write_with, digest, read_manifest, verify

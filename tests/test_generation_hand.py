@@ -168,3 +168,24 @@ def test_force_closure_refinement_pulls_the_contacts_the_paper_refinement_leaves
     assert bool((after.sum(-1) < 0.75 * before.sum(-1)).all())
     with pytest.raises(ValueError, match="fc_steps"):
         refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=1, fc_steps=1))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_force_closure_refinement_runs_on_cuda_as_on_the_cpu(library):
+    """The two refinement stages on cuda (hand, objects and poses there) keep the CPU's outcome: the hand backed out
+    of the sphere and the assigned contacts pulled in, with every result on the device."""
+    from components.synthesis import SynthesisConfig
+
+    hand_cpu = HandModel(HandConfig(), dtype=torch.float32)
+    hand_gpu = HandModel(HandConfig(), device="cuda", dtype=torch.float32)
+    objects, p, R, q = hand_pressed_into_a_sphere(hand_cpu, library)
+    objects_gpu = SceneObjects(library, objects.scene, device="cuda")
+    cfg, synthesis = RefineConfig(steps=30, fc_steps=100), SynthesisConfig()
+    cpu = refine_grasps(hand_cpu, objects, p, R, q, cfg, synthesis=synthesis)
+    gpu = refine_grasps(hand_gpu, objects_gpu, p.cuda(), R.cuda(), q.cuda(), cfg, synthesis=synthesis)
+    assert gpu.p.is_cuda and gpu.q.is_cuda and bool(torch.isfinite(gpu.q).all())
+    assert bool((gpu.depth_after < 0.5 * gpu.depth_before).all())
+    paper = refine_grasps(hand_gpu, objects_gpu, p.cuda(), R.cuda(), q.cuda(), RefineConfig(steps=30), synthesis=synthesis)
+    pulled = _assigned_contact_distances(hand_gpu, objects_gpu, gpu).sum(-1)
+    assert bool((pulled < 0.75 * _assigned_contact_distances(hand_gpu, objects_gpu, paper).sum(-1)).all())
+    assert float((gpu.p.cpu() - cpu.p).norm(dim=-1).max()) < 0.01  # same basin: within 1 cm of the CPU's wrist

@@ -1,0 +1,100 @@
+"""PPO hyper-parameters (:class:`PPOConfig`) for :mod:`components.execution.ppo`, apart from the training code
+so that reading a config does not import torchrl (as :mod:`components.execution.lift_config` for the env)."""
+
+from __future__ import annotations
+
+from typing import Literal, Optional
+
+from pydantic import Field, PositiveInt
+
+from components.config_base import Section
+
+#: PPOConfig fields a finished training can be continued across: raising ``iterations`` trains on from the last
+#: checkpoint (``checkpoint_every`` only says when checkpoints are written).
+EXTENDABLE_FIELDS = frozenset({"iterations", "checkpoint_every"})
+
+
+class PPOConfig(Section):
+    """PPO hyper-parameters (defaults: torchrl's MuJoCo PPO recipe, scaled to a 2-core CPU)."""
+
+    iterations: int = Field(50, ge=1, description="Collector batches (PPO iterations) to train for.")
+    frames_per_batch: int = Field(2000, ge=1, description="Environment steps collected per iteration (all workers together).")
+    workers: int = Field(
+        1, ge=1,
+        description="Collector processes: 1 runs the env in this process (Collector); more use MultiSyncCollector "
+        "(2 processes gave 1.9x on 2 cores).")
+    epochs: int = Field(5, ge=1, description="Passes over each batch.")
+    minibatch_size: int = Field(250, ge=1, description="Transitions per gradient step.")
+    lr: float = Field(3e-4, gt=0.0, description="Adam learning rate of actor and critic.")
+    max_grad_norm: float = Field(1.0, gt=0.0, description="Gradient-norm clip.")
+    gamma: float = Field(0.99, gt=0.0, le=1.0, description="Discount.")
+    lmbda: float = Field(0.95, ge=0.0, le=1.0, description="GAE lambda.")
+    clip_epsilon: float = Field(0.2, gt=0.0, description="PPO ratio clip.")
+    entropy_coeff: float = Field(0.0, ge=0.0, description="Entropy bonus weight.")
+    critic_coeff: float = Field(0.5, ge=0.0, description="Value loss weight.")
+    hidden: tuple[PositiveInt, ...] = Field((256, 256), description="Hidden widths of the actor and critic MLPs.")
+    init_scale: float = Field(
+        0.05, gt=0.0,
+        description="Initial action standard deviation (before the tanh).  0.05 (was 0.2, before that 0.5): around a "
+        "closed grasp, noise on every action drops what the mean action lifts (README 'Grasp closure': 1/60 at 0.5 "
+        "against 4/60 without noise), so the sampled episodes hardly ever succeed and PPO has nothing to learn from.  "
+        "Bench pairs, 2 bins x 400 k frames (README 'The lift reward, and the specialists after the closure'): 0.2 at "
+        "lr 3e-4 took the Syn-Pl success from its start's 9.2 % to 1.8 %, 0.05 at lr 1e-4 to 6.0 %, 0.05 at lr 3e-4 to "
+        "1.0 % (the learning rate made the difference; 0.05 kept as the best measured setting).")
+    normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
+    normalizer_frozen_after: Optional[int] = Field(
+        None, ge=1,
+        description="Stop updating the normaliser's statistics after this many iterations (None = never).  Each update "
+        "moves every later policy without PPO's clip (kl_start with 'before_update'; the same move lands on the next "
+        "batch's collecting policy with 'after_update'), and an observation entry that hardly varied early on is "
+        "divided by a tiny deviation once it does.  With std_mode 'independent' and critic_warmup_iterations >= this "
+        "value, the statistics settle while the actor is still exactly its start (zero mean rows), and afterwards only "
+        "PPO's steps move the policy, as torchrl's recipes with ObservationNorm.init_stats do.")
+    normalizer_update: Literal["after_update", "before_update"] = Field(
+        "after_update",
+        description="When a batch's observations enter the normaliser's statistics.  The normaliser is the actor's first "
+        "layer, so changing it changes the policy.  'after_update' (default since the thirty-second session): after "
+        "the batch's PPO update, so the update starts from the very policy that collected the batch (probability "
+        "ratios 1, kl_start 0) and the clip bounds the whole step; the first batch still sets the statistics before "
+        "its update (the untrained mean ignores them: its rows start at zero).  'before_update': the recipe until "
+        "then, where every update started from a policy the normaliser had already moved, outside the clip's control.  "
+        "The history's kl_start measures that move.")
+    std_mode: Literal["state", "independent"] = Field(
+        "state",
+        description="How the actor's standard deviation is parametrised.  'state': a second output of the actor MLP "
+        "(biased softplus, floor 0.01; the recipe until the thirty-first session) -- without an entropy bonus it can "
+        "shrink or grow per state, and in run D of docs/experiments.md it collapsed (entropy -38 -> -97).  'independent': one "
+        "learned log-std per action dimension (tensordict's AddStateIndependentNormalScale, as torchrl's MuJoCo PPO "
+        "recipe), starting at init_scale, floored at min_scale.")
+    min_scale: float = Field(1e-3, gt=0.0, description="Lower bound of the state-independent standard deviation (std_mode 'independent').")
+    grad_clip: Literal["joint", "separate"] = Field(
+        "separate",
+        description="'separate': the actor's and the critic's gradients are clipped to max_grad_norm each.  'joint' "
+        "(until the thirty-first session): one clip over both -- the critic's gradient norm (~14-21 on the lift's "
+        "value targets) then scales the actor's down to ~5 % of itself, by a factor that changes with every batch.")
+    reward_scale: float = Field(
+        1.0, gt=0.0,
+        description="Rewards are multiplied by this before GAE (the history's 'reward' stays unscaled).  The lift's "
+        "returns reach about +100 (success) and -100 to -170 (a fall pays the rest of the episode at once), while a fresh "
+        "critic outputs ~0: its L2 loss then swings between ~3 and ~500 from batch to batch.")
+    critic_warmup_iterations: int = Field(
+        0, ge=0,
+        description="First iterations in which only the critic learns (the actor's loss is not applied).  The actor "
+        "starts from a scripted controller (specialists.init_policy) and the critic from random weights: without a "
+        "warm-up the first actor updates follow the advantages of an untrained critic.")
+    target_kl: Optional[float] = Field(
+        None, gt=0.0,
+        description="Stop a batch's remaining epochs once the mean approximate KL between the acting and the updated "
+        "policy (policy_kl, the k3 estimator over the whole batch after each epoch) exceeds this; None: always all epochs.  "
+        "The history records kl_approx, clip_fraction and the epochs done.")
+    checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
+    validate_every: int = Field(
+        10, ge=0,
+        description="Iterations between validations of the deterministic policy on the caller's fixed episodes "
+        "(also before the first update and at the end); the best validated actor is kept and is the one evaluated.  "
+        "0 = no validation, the last actor is evaluated.  Validation runs in the learner's process while the "
+        "collectors wait (the specialists: specialists.validation_poses x validation_trials episodes).")
+    seed: int = Field(0, ge=0, description="Seed of the networks and the collectors.")
+
+
+# ============================================================================ networks
