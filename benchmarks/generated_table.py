@@ -9,8 +9,10 @@ For the first ``--scenes`` scenes of ``--split`` of the ``scenes`` stage, ``gene
 each, generated, IK-solved and refined exactly as ``multigrasp evaluate pregrasp --source generated`` does
 (:func:`flows.evaluate_generated.generate_for_scene`, same seeds), scored by Q1 and PN, and written with the
 synthesis table's columns (``scene_id``, ``split``, ``combination``, ``row``, object names / positions /
-quaternions, ``p``, ``R``, ``q``, ``accepted`` = True for every row: generated grasps are not filtered, ``q1``,
-``pn_mm``; no chosen contacts).  The JSON gives n, mean Q1 and PN.
+quaternions, ``p``, ``R``, ``q``, ``accepted``, ``q1``, ``pn_mm``, ``contact_ratio``; no chosen contacts).
+``accepted`` is the paper's protocol filter (``generator.eval_filter``: PN and contact ratio; ``--set
+generator.eval_filter.enabled=false`` accepts every row), so the lift tools, which read accepted rows, lift what the
+protocol keeps.  The JSON gives n (accepted), n_generated, mean Q1 and PN over the accepted rows and over all.
 """
 
 from __future__ import annotations
@@ -31,9 +33,8 @@ def run(cfg, split: str, scenes: int, out: Path, checkpoint: Path | None) -> dic
 
     from components.generation import load_generator
     from components.hand import HandModel
-    from components.metrics import penetration_depth, q1_grasps
     from components.objects import ObjectLibrary
-    from flows.evaluate_generated import generate_for_scene
+    from flows.evaluate_generated import generate_for_scene, score_generated
     from flows.pipeline import stage_output
     from tasks.preflight import cache_dir
     from tasks.synthesize import read_scene_records
@@ -55,8 +56,7 @@ def run(cfg, split: str, scenes: int, out: Path, checkpoint: Path | None) -> dic
     rows = []
     for number, record in enumerate(picked):
         objects, refined, seconds = generate_for_scene(cfg, model, hand, library, record, number)
-        q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, cfg.synthesis.metrics)
-        pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, cfg.synthesis.metrics).pn_mm
+        q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
         scene = objects.scene
         for i in range(refined.p.shape[0]):
             rows.append({"scene_id": record["id"], "split": split, "combination": "+".join(scene.names), "row": i,
@@ -64,14 +64,19 @@ def run(cfg, split: str, scenes: int, out: Path, checkpoint: Path | None) -> dic
                          "object_positions": np.concatenate([pl.position for pl in scene.objects]).tolist(),
                          "object_quats_xyzw": np.concatenate([pl.quat_xyzw for pl in scene.objects]).tolist(),
                          "p": refined.p[i].tolist(), "R": refined.R[i].reshape(-1).tolist(),
-                         "q": refined.q[i].tolist(), "accepted": True, "q1": float(q1[i]), "pn_mm": float(pn[i])})
+                         "q": refined.q[i].tolist(), "accepted": bool(kept[i]), "q1": float(q1[i]),
+                         "pn_mm": float(pn[i]), "contact_ratio": float(ratio[i])})
         print(f"generated table: scene {number + 1}/{len(picked)} ({refined.p.shape[0]} grasps in {seconds:.1f}s)",
               file=sys.stderr, flush=True)
     frame = pd.DataFrame(rows)
     out.parent.mkdir(parents=True, exist_ok=True)
     frame.to_parquet(out)
-    return {"grasps": str(out), "split": split, "scenes": len(picked), "n": len(frame),
-            "q1": round(float(frame["q1"].mean()), 4), "pn_mm": round(float(frame["pn_mm"].mean()), 3),
+    accepted = frame[frame["accepted"]]
+    return {"grasps": str(out), "split": split, "scenes": len(picked), "n": len(accepted), "n_generated": len(frame),
+            "q1": round(float(accepted["q1"].mean()), 4) if len(accepted) else None,
+            "pn_mm": round(float(accepted["pn_mm"].mean()), 3) if len(accepted) else None,
+            "q1_all": round(float(frame["q1"].mean()), 4), "pn_mm_all": round(float(frame["pn_mm"].mean()), 3),
+            "eval_filter": cfg.generator.eval_filter.model_dump(),
             "refine": cfg.generator.refine.model_dump(),
             "checkpoint": str(checkpoint) if checkpoint else str(Path(generator.folder) / "manifest.json")}
 
@@ -99,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_config(args.profile, args.config, args.sets, **({"workdir": args.workdir} if args.workdir else {}))
         return run(cfg, args.split, args.scenes, args.out, args.checkpoint)
 
-    return finish_tool(args.json, compute, lambda r: print(f"generated table: {r['n']} grasps, Q1 {r['q1']}, "
+    return finish_tool(args.json, compute, lambda r: print(f"generated table: {r['n']} of {r['n_generated']} grasps accepted, Q1 {r['q1']}, "
                                                            f"PN {r['pn_mm']} mm -> {r['grasps']}"))
 
 

@@ -6,7 +6,8 @@
 Each variant is a set of overrides of the ``generator`` stage (``sampler.*``, ``refine.*``, ``ik.*``); every
 variant generates for the same scenes, palm directions and seeds (``evaluate pregrasp --source generated``'s
 loop, :func:`flows.evaluate_generated.generated_rows`), so the rows differ only by the setting.  Per variant:
-mean Q1, PN (mm) after refinement, Div (deg), the raw samples' mean penetration before refinement
+mean Q1, PN (mm) after refinement and Div (deg) over the grasps the paper's protocol keeps (``generator.eval_filter``;
+``accept_rate`` kept / generated; ``q1_all`` / ``pn_mm_all`` over every grasp), the raw samples' mean penetration before refinement
 (``pn_before_refine_mm``) and the wall time scaled to 256 grasps.  The model is the config's
 ``train-generator`` stage, or ``--checkpoint`` (e.g. one trained under an older code version).
 Default variants: the paper's setting (100 ancestral DDPM steps, 200 refinement steps) and strided DDIM
@@ -55,10 +56,12 @@ def run(cfg, variants: dict[str, list[str]], split: str, checkpoint: Path | None
         row = measured[0]
         rows.append({"variant": name, "overrides": sets, "q1": row["q1"], "pn_mm": row["pn_mm"],
                      "div_deg": row["div_deg"], "pn_before_refine_mm": row["pn_before_refine_mm"], "n": row["n"],
+                     "n_generated": row["n_generated"], "accept_rate": row["accept_rate"], "q1_all": row["q1_all"], "pn_mm_all": row["pn_mm_all"],
+                     "div_deg_all": row["div_deg_all"], "contact_ratio": row["contact_ratio"],
                      "time_s": row["time_s"], "time_256_s": row["time_256_s"]})
-        print(f"sampler quality: {name}: n {row['n']} Q1 {row['q1']} PN {row['pn_mm']} Div {row['div_deg']} "
-              f"PN before refinement {row['pn_before_refine_mm']} time/256 {row['time_256_s']} s",
-              file=sys.stderr, flush=True)
+        print(f"sampler quality: {name}: kept {row['n']}/{row['n_generated']} Q1 {row['q1']} PN {row['pn_mm']} "
+              f"Div {row['div_deg']} (all generated: Q1 {row['q1_all']} PN {row['pn_mm_all']}) PN before refinement "
+              f"{row['pn_before_refine_mm']} time/256 {row['time_256_s']} s", file=sys.stderr, flush=True)
     return {"profile": cfg.profile, "split": split, "scenes": cfg.generator.eval_scenes,
             "grasps_per_scene": cfg.generator.eval_grasps_per_scene, **source, "rows": rows}
 

@@ -5,8 +5,13 @@ For each setting ``Gen-Pl`` / ``Gen-Com`` / ``Gen-Geo``, the first ``generator.e
 split (the ``scenes`` stage's, the same ones synthesis saw) each get ``generator.eval_grasps_per_scene``
 grasps -- random palm directions, sampling (``generator.sampler``), IK, refinement -- whose Q1, PN and Div are measured as
 for the synthetic rows (``synthesis.metrics``).  ``time_s`` is the wall time of sampling + IK + refinement
-of the setting's grasps and ``time_256_s`` that time scaled to 256 grasps.  Every generated grasp counts
-(there is no filter), so ``accept_rate`` is 1.
+of the setting's grasps and ``time_256_s`` that time scaled to 256 grasps.
+
+The paper's protocol discards generated pre-grasps "with significant penetration or insufficient contact ratio"
+(``generator.eval_filter``, :mod:`components.generation.filter`). A row's ``q1`` / ``pn_mm`` / ``div_deg`` are
+over the kept grasps, ``accept_rate`` = kept / generated, and ``q1_all`` / ``pn_mm_all`` / ``div_deg_all`` are over
+every generated grasp (the rows' only figures until the thirty-fourth session), with ``contact_ratio`` their mean
+contact ratio. With ``eval_filter.enabled: false`` every grasp is kept.
 """
 
 from __future__ import annotations
@@ -35,6 +40,11 @@ GENERATOR_ABLATIONS: dict[str, dict[str, Any]] = {
 }
 
 
+#: What an ablation row keeps of its Gen-Pl row: Q1 / PN over the kept grasps (the paper's protocol), the kept
+#: fraction, and Q1 / PN over every generated grasp.
+ABLATION_FIELDS = ("q1", "pn_mm", "n", "accept_rate", "q1_all", "pn_mm_all")
+
+
 def generator_ablation_rows(cfg: PipelineConfig, ours: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Q1 / PN on the Pl scenes of every :data:`GENERATOR_ABLATIONS` variant; variants that change the model
     are trained first (the train-generator stage with the overrides: cached units).  ``ours``: the Gen-Pl row
@@ -45,13 +55,13 @@ def generator_ablation_rows(cfg: PipelineConfig, ours: dict[str, Any] | None = N
     rows = []
     for name, overrides in GENERATOR_ABLATIONS.items():
         if not overrides and ours is not None:
-            rows.append({"setting": name, "q1": ours["q1"], "pn_mm": ours["pn_mm"], "n": ours["n"], "overrides": {}})
+            rows.append({"setting": name, **{k: ours.get(k) for k in ABLATION_FIELDS}, "overrides": {}})
             continue
         variant = with_overrides(cfg, overrides)
         if any(key.startswith("generator.model") for key in overrides):
             run_pipeline(variant, [train_generator], command=f"ablation:{name}")
         pl = generated_rows(variant, settings=(("Gen-Pl", "Pl"),))[0][0]
-        rows.append({"setting": name, "q1": pl["q1"], "pn_mm": pl["pn_mm"], "n": pl["n"], "overrides": overrides})
+        rows.append({"setting": name, **{k: pl.get(k) for k in ABLATION_FIELDS}, "overrides": overrides})
     return rows
 
 
@@ -91,6 +101,23 @@ def generate_for_scene(cfg: PipelineConfig, model, hand, library, record: dict[s
     return objects, refined, time.perf_counter() - start
 
 
+def score_generated(cfg: PipelineConfig, hand, objects, refined):
+    """Q1, PN (mm), contact ratio and the paper's protocol filter (``generator.eval_filter``) of one scene's refined
+    grasps (:func:`generate_for_scene`). -> q1, pn_mm, contact_ratio (B,) float tensors and kept (B,) bool."""
+    import torch
+
+    from components.generation import contact_ratio, keep_generated
+    from components.metrics import penetration_depth, q1_grasps
+
+    metrics, keep = cfg.synthesis.metrics, cfg.generator.eval_filter
+    q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
+    pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
+    ratio = contact_ratio(hand, objects, refined.p, refined.R, refined.q,
+                          cfg.synthesis.optimizer_for(objects.n_objects), keep.contact_distance_m)
+    pn = torch.as_tensor(pn, dtype=ratio.dtype)
+    return torch.as_tensor(q1, dtype=ratio.dtype), pn, ratio, keep_generated(pn, ratio, keep)
+
+
 def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint: Path | None = None,
                    progress: Callable[[str], None] | None = _progress_line
                    ) -> tuple[list[dict[str, Any]], dict[str, str]]:
@@ -102,7 +129,6 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
 
     from components.generation import load_generator
     from components.hand import HandModel
-    from components.metrics import penetration_depth, q1_grasps
     from components.objects import ObjectLibrary
     from flows.evaluate import Setting, setting_row
     from flows.pipeline import stage_output
@@ -117,7 +143,7 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     if checkpoint is None and generator is None:
         raise MultigraspError("evaluate pregrasp --source generated needs a trained generator for this config — run "
                               "`multigrasp run --until train-generator` first (same --profile / --config / --set)")
-    stage, metrics = cfg.generator, cfg.synthesis.metrics
+    stage = cfg.generator
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
@@ -133,18 +159,22 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
             objects, refined, elapsed = generate_for_scene(cfg, model, hand, library, record, number)
             n = stage.eval_grasps_per_scene
             seconds += elapsed
-            q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
-            pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
+            q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
             for i in range(n):
                 frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy(),
-                                   "pn_before_mm": float(refined.depth_before[i]) * 1000.0})
+                                   "pn_before_mm": float(refined.depth_before[i]) * 1000.0,
+                                   "contact_ratio": float(ratio[i]), "kept": bool(kept[i])})
             done += 1
             if progress is not None:
                 elapsed = time.perf_counter() - begin
                 progress(f"generated {name} scene {number + 1}/{len(picked)} ({n} grasps; generation, IK, refinement, "
                          f"Q1, PN) elapsed {elapsed:.0f}s ETA {elapsed / done * (total - done):.0f}s")
-        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q", "pn_before_mm"])
-        row = setting_row(Setting(name, split), frame, len(frame))
+        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q", "pn_before_mm", "contact_ratio", "kept"])
+        row = setting_row(Setting(name, split), frame[frame["kept"].astype(bool)], len(frame))
+        every = setting_row(Setting(name, split), frame, len(frame))
+        row.update({"q1_all": every["q1"], "pn_mm_all": every["pn_mm"], "div_deg_all": every["div_deg"],
+                    "n_generated": len(frame),
+                    "contact_ratio": round(float(frame["contact_ratio"].mean()), 4) if len(frame) else None})
         row["pn_before_refine_mm"] = round(float(frame["pn_before_mm"].mean()), 3) if len(frame) else None
         row["time_s"] = round(seconds, 3)
         row["time_256_s"] = round(seconds / len(frame) * 256, 2) if len(frame) else None

@@ -7,7 +7,8 @@ The scene is read from ``--placement`` (JSON of ``Scene.to_dict``: ``{"objects":
 "quat_xyzw"}, ...]}``) or sampled like the pipeline's scenes.  The generator samples ``n`` grasps (all
 with the palm facing ``--palm-direction`` degrees about z, else each a random direction), IK turns
 keypoints into (p, R, q), the refinement removes penetration, and the result goes to
-``<workdir>/results/generated/<objects>-<seed>/``: ``grasps.json`` (p, R, q, penetration before/after),
+``<workdir>/results/generated/<objects>-<seed>/``: ``grasps.json`` (p, R, q, penetration before/after, Q1, PN,
+contact ratio, and ``kept``: whether the paper's protocol filter keeps the grasp, ``generator.eval_filter``),
 ``scene.json`` and a render grid ``grasps.png``.  Any library object or user mesh works, seen in
 training or not; without a trained generator the error names the command that trains it.
 """
@@ -44,6 +45,7 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
     from components.hand import HandModel
     from components.objects import ObjectLibrary, Scene, sample_scene
     from components.synthesis import SceneObjects
+    from flows.evaluate_generated import score_generated
     from flows.pipeline import stage_output
     from tasks.preflight import cache_dir
     from tasks.synthesize_merge import render_grasp_rgb, render_grid
@@ -93,9 +95,12 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
     t2 = time.perf_counter()
     folder = cfg.run.workdir / "results" / "generated" / f"{'+'.join(scene.names)}-{seed}"
     atomic_write_json(folder / "scene.json", scene.to_dict())
+    q1, pn, ratio, kept = score_generated(cfg, hand, scene_objects, refined)
     rows = [{"p": refined.p[i].tolist(), "R": refined.R[i].reshape(-1).tolist(), "q": refined.q[i].tolist(),
              "penetration_before_mm": float(refined.depth_before[i]) * 1000.0,
-             "penetration_after_mm": float(refined.depth_after[i]) * 1000.0} for i in range(n)]
+             "penetration_after_mm": float(refined.depth_after[i]) * 1000.0,
+             "q1": float(q1[i]), "pn_mm": float(pn[i]), "contact_ratio": float(ratio[i]), "kept": bool(kept[i])}
+            for i in range(n)]
     seconds = {"sample_and_ik_s": round(t1 - t0, 3), "refine_s": round(t2 - t1, 3)}
     atomic_write_json(folder / "grasps.json", {"grasps": rows, "palm_direction_deg": palm_direction_deg, "seed": seed,
                                                "generator": str(manifest.path("generator")), **seconds})

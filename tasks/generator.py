@@ -24,7 +24,7 @@ from prefect import task
 from pydantic import Field
 
 from components.config_base import Section
-from components.generation.config import GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
+from components.generation.config import GeneratedFilterConfig, GeneratorConfig, IKConfig, RefineConfig, SamplerConfig
 from components.objects.config import ObjectsConfig
 from tasks.artifacts import Manifest, atomic_write_json, digest, read_manifest, verify
 from tasks.grasp_tables import RecordsSource, grasp_rows
@@ -52,6 +52,10 @@ class GeneratorStageConfig(Section):
     lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates per scene.")
     eval_scenes: int = Field(16, ge=1, description="evaluate pregrasp --source generated: scenes per split (Pl / Com / Geo).")
     eval_grasps_per_scene: int = Field(16, ge=1, description="...and grasps generated per scene.")
+    eval_filter: GeneratedFilterConfig = Field(
+        default_factory=GeneratedFilterConfig,
+        description="evaluate pregrasp --source generated: which generated grasps are kept (the paper's protocol "
+        "discards those with significant penetration or insufficient contact ratio); rows report both.")
 
 
 def training_frame(synthesis: Manifest, stage: GeneratorStageConfig):

@@ -6,13 +6,16 @@ import pytest
 import torch
 
 from components.generation import (
+    GeneratedFilterConfig,
     GeneratorConfig,
     IKConfig,
     RefineConfig,
     contact_energy,
+    contact_ratio,
     from_representation,
     generate_grasps,
     kabsch,
+    keep_generated,
     palm_direction,
     palm_keypoint_indices,
     refine_grasps,
@@ -168,6 +171,31 @@ def test_force_closure_refinement_pulls_the_contacts_the_paper_refinement_leaves
     assert bool((after.sum(-1) < 0.75 * before.sum(-1)).all())
     with pytest.raises(ValueError, match="fc_steps"):
         refine_grasps(hand32, objects, p, R, q, RefineConfig(steps=1, fc_steps=1))
+
+
+def test_contact_ratio_counts_the_assigned_contacts_that_touch(hand32, library):
+    """Pressed into the sphere, the ratio is the fraction of the 3 assigned contacts within the distance; lifted 1 m
+    above it, no contact touches; any contact touches within 10 m."""
+    from components.synthesis import SynthesisConfig
+
+    objects, p, R, q = hand_pressed_into_a_sphere(hand32, library)
+    synthesis = SynthesisConfig()
+    pressed = type("Pose", (), {"p": p, "R": R, "q": q})
+    distances = _assigned_contact_distances(hand32, objects, pressed)  # (2, 3)
+    for d in (0.002, 0.005, 0.02):
+        expected = (distances <= d).float().mean(-1)
+        assert torch.allclose(contact_ratio(hand32, objects, p, R, q, synthesis, d), expected)
+    lifted = p + torch.tensor([0.0, 0.0, 1.0])
+    assert bool((contact_ratio(hand32, objects, lifted, R, q, synthesis, 0.005) == 0).all())
+    assert bool((contact_ratio(hand32, objects, lifted, R, q, synthesis, 10.0) == 1).all())
+
+
+def test_keep_generated_applies_the_penetration_and_contact_ratio_thresholds():
+    cfg = GeneratedFilterConfig()  # 5 mm, 2/3
+    pn = torch.tensor([5.0, 5.1, 1.0, 1.0, 0.0])
+    ratio = torch.tensor([1.0, 1.0, 2.0 / 3.0, 1.0 / 3.0, 0.0])
+    assert keep_generated(pn, ratio, cfg).tolist() == [True, False, True, False, False]
+    assert keep_generated(pn, ratio, cfg.model_copy(update={"enabled": False})).all()
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -62,6 +62,8 @@ def test_generate_for_an_object_the_generator_never_saw(trained):
     (folder,) = (workdir / "results" / "generated").iterdir()
     grasps = json.loads((folder / "grasps.json").read_text())
     assert len(grasps["grasps"]) == 2 and len(grasps["grasps"][0]["q"]) == 22
+    first = grasps["grasps"][0]
+    assert first["q1"] >= 0.0 and 0.0 <= first["contact_ratio"] <= 1.0 and isinstance(first["kept"], bool)
     assert (folder / "grasps.png").is_file()
     assert json.loads((folder / "scene.json").read_text())["objects"][1]["name"] == "block"
 
@@ -108,9 +110,14 @@ def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
     assert set(rows) == {"Gen-Pl", "Gen-Com", "Gen-Geo"}
     assert rows["Gen-Pl"]["n"] == 0 and rows["Gen-Pl"]["q1"] is None  # this small config has no Pl scenes
     for name in ("Gen-Com", "Gen-Geo"):  # Geo: a user mesh the generator never trained on
-        assert rows[name]["n"] == 2 and rows[name]["q1"] >= 0.0 and rows[name]["pn_mm"] >= 0.0
-        assert rows[name]["time_s"] > 0 and rows[name]["div_deg"] is not None
-    assert "Gen (paper, Pl)" in (workdir / "results" / "pregrasp_generated.md").read_text()
+        row = rows[name]
+        assert row["n_generated"] == 2 and row["q1_all"] >= 0.0 and row["pn_mm_all"] >= 0.0
+        assert row["time_s"] > 0 and row["div_deg_all"] is not None and 0.0 <= row["contact_ratio"] <= 1.0
+        # the paper's protocol filter: n kept of the 2, Q1 / PN over the kept ones
+        assert 0 <= row["n"] <= 2 and row["accept_rate"] == row["n"] / 2
+        assert (row["q1"] is None) == (row["n"] == 0)
+    markdown = (workdir / "results" / "pregrasp_generated.md").read_text()
+    assert "Gen (paper, Pl)" in markdown and "all generated" in markdown
 
 
 def test_generator_ablations_file_has_the_papers_rows(trained, monkeypatch):
@@ -124,7 +131,7 @@ def test_generator_ablations_file_has_the_papers_rows(trained, monkeypatch):
     assert main(argv) == 0
     rows = json.loads((workdir / "results" / "ablation_generator.json").read_text())["rows"]
     assert [r["setting"] for r in rows] == ["Ours", "w/o Refinement"]
-    assert all(set(r) >= {"q1", "pn_mm", "n"} for r in rows)
+    assert all(set(r) >= {"q1", "pn_mm", "n", "accept_rate", "q1_all", "pn_mm_all"} for r in rows)
 
 
 def test_generator_ablations_list_the_papers_variants():
@@ -153,7 +160,8 @@ def test_sampler_quality_tool_compares_settings_on_the_same_scenes(trained, tmp_
             "--set", "generator.eval_scenes=1", "--set", "generator.eval_grasps_per_scene=2", "--json", str(out)]
     assert sampler_quality.main(argv) == 0
     rows = {r["variant"]: r for r in json.loads(out.read_text())["rows"]}
-    assert set(rows) == {"paper", "fast"} and rows["paper"]["n"] == rows["fast"]["n"] == 2
+    assert set(rows) == {"paper", "fast"} and rows["paper"]["n_generated"] == rows["fast"]["n_generated"] == 2
+    assert all(r["n"] <= 2 and r["accept_rate"] == r["n"] / 2 and r["q1_all"] >= 0.0 for r in rows.values())
     assert rows["fast"]["overrides"] == ["sampler.method=ddim", "sampler.steps=5", "refine.steps=2"]
     assert rows["fast"]["pn_before_refine_mm"] >= 0.0
     assert sampler_quality.main([*argv, "--variant", "oops"]) == 2
@@ -210,11 +218,17 @@ def test_generated_table_reads_like_a_synthesis_table(trained, tmp_path, capsys)
     out, summary = tmp_path / "gen.parquet", tmp_path / "gen.json"
     argv = [*base, "--set", "generator.eval_grasps_per_scene=2", "--set", "generator.refine.fc_steps=2",
             "--split", "Geo", "--scenes", "1", "--out", str(out), "--json", str(summary)]
-    assert table_main(argv) == 0
+    assert table_main([*argv, "--set", "generator.eval_filter.enabled=false"]) == 0  # every row accepted
     frame = read_accepted(out, "Geo", 10)
     assert len(frame) == 2 and json.loads(summary.read_text())["n"] == 2
     records = records_from_table(frame)
     assert records[0].R.shape == (3, 3) and records[0].q.shape == (22,)
     assert [o.name for o in records[0].scene.objects] == list(frame.iloc[0]["object_names"])
+    assert table_main(argv) == 0  # the paper's protocol filter: `accepted` is the kept rows
+    import pandas as pd
+
+    written, result = pd.read_parquet(out), json.loads(summary.read_text())
+    assert result["n_generated"] == 2 and result["n"] == int(written["accepted"].sum())
+    assert written["contact_ratio"].between(0.0, 1.0).all()
     assert table_main([*argv, "--checkpoint", str(tmp_path / "missing.pt")]) == 2
     assert "is not a file" in capsys.readouterr().err

@@ -5,7 +5,8 @@ Modules, in pipeline order: :mod:`~.config` (``GeneratorConfig``, ``IKConfig``, 
 :mod:`~.denoiser` (cross-attention eps-network), :mod:`~.diffusion` (DDPM schedule, q_sample, loss,
 ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints), :mod:`~.ik`
 (keypoints -> (p, R, q)), :mod:`~.generator` (model wrapper, palm-aligned generation) and
-:mod:`~.refine` (E_pen + contact pull with tau 2 mm -> 1 mm)::
+:mod:`~.refine` (E_pen + contact pull with tau 2 mm -> 1 mm) and :mod:`~.filter` (the paper's protocol
+filter of generated pre-grasps: penetration and contact ratio)::
 
     from components.generation import GeneratorConfig, GraspGenerator, IKConfig, generate_grasps
     model = GraspGenerator(GeneratorConfig())
@@ -13,7 +14,14 @@ ancestral sampling, training loop), :mod:`~.representation` (keypoints | joints)
 """
 
 from components.generation.canonical import AlignedFrame, palm_direction, rotation_z, yaw_of
-from components.generation.config import GeneratorConfig, GuidanceConfig, IKConfig, RefineConfig, SamplerConfig
+from components.generation.config import (
+    GeneratedFilterConfig,
+    GeneratorConfig,
+    GuidanceConfig,
+    IKConfig,
+    RefineConfig,
+    SamplerConfig,
+)
 from components.generation.dataset import GraspDataset, object_cloud, posed_clouds, scene_pivot
 from components.generation.denoiser import GraspDenoiser, ObjectContext, ObjectInputs, timestep_embedding
 from components.generation.diffusion import (
@@ -31,6 +39,7 @@ from components.generation.diffusion import (
     sample,
     train_diffusion,
 )
+from components.generation.filter import contact_ratio, keep_generated
 from components.generation.generator import GraspGenerator, generate_grasps, guidance_hook
 from components.generation.guidance import KeypointSpheres, guidance_energy, guidance_step, make_guide
 from components.generation.ik import IKResult, kabsch, keypoint_error, palm_keypoint_indices, solve_ik
@@ -54,7 +63,7 @@ from components.generation.representation import from_representation, representa
 from components.generation.training import TrainResult, extendable_step, load_generator, train_generator
 
 __all__ = [
-    "AlignedFrame", "GeneratorConfig", "GuidanceConfig", "GuideFn", "KeypointSpheres", "guidance_energy",
+    "AlignedFrame", "GeneratedFilterConfig", "contact_ratio", "keep_generated", "GeneratorConfig", "GuidanceConfig", "GuideFn", "KeypointSpheres", "guidance_energy",
     "guidance_hook", "guidance_step", "make_guide", "GraspDenoiser", "GraspGenerator", "IKConfig", "IKResult", "NoiseSchedule",
     "ObjectContext", "ObjectInputs", "PointNet2Encoder", "RefineConfig", "RefineResult", "SamplerConfig",
     "SetAbstraction", "ddim_sample", "ddim_step", "ddim_timesteps", "denoise_from",

@@ -226,3 +226,28 @@ class RefineConfig(Section):
         if self.tau_end_m > self.tau_start_m:
             raise ValueError("tau_end_m must be <= tau_start_m (coarse to fine)")
         return self
+
+
+class GeneratedFilterConfig(Section):
+    """Which generated pre-grasps the evaluation keeps. The paper's protocol (§"Evaluation Protocols"): "for each
+    arrangement, we generate pre-grasp poses, discarding those with significant penetration or insufficient contact
+    ratio". The paper gives no thresholds; the defaults are the synthesis filter's (5 mm) and two of the three
+    force-closure contacts on every object (:func:`components.generation.filter.contact_ratio`)."""
+
+    enabled: bool = Field(
+        True, description="Discard generated pre-grasps as the paper's protocol does (False: every one counts, "
+        "accept_rate 1).")
+    max_penetration_m: float = Field(
+        0.005, gt=0.0,
+        description="Discard a grasp whose PN (the metric: deepest hand-object, object-hand, hand-table or self "
+        "penetration) exceeds this. Default: the synthesis filter's filter_penetration_m (the release's 5 mm).")
+    contact_distance_m: float = Field(
+        0.005, gt=0.0,
+        description="A contact counts as touching when |signed distance| to its object is within this. Default: the "
+        "synthesis filter's filter_contact_distance_m (5 mm), also Q1's contact distance.")
+    min_contact_ratio: float = Field(
+        2.0 / 3.0, ge=0.0, le=1.0,
+        description="Discard a grasp whose contact ratio is below this. The contact ratio is the smallest, over the "
+        "objects, fraction of the object's contacts_per_object force-closure contacts (each object's nearest hand "
+        "candidates on distinct fingers, as the synthesis assigns them) that touch. 2/3 with 3 contacts: at least two "
+        "fingers on every object.")
