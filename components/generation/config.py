@@ -214,7 +214,8 @@ class RefineConfig(Section):
     fc_w_pen: Optional[float] = Field(
         None, ge=0.0,
         description="w_pen of the force-closure refinement (None = synthesis.optimizer.w_pen). The synthesis filters "
-        "out its penetrating candidates; generated grasps are not filtered, so a stiffer E_pen stands in for it.")
+        "out its penetrating candidates and keeps the rest; a generated grasp that penetrates is only discarded "
+        "afterwards (the evaluation's generator.eval_filter), so a stiffer E_pen stands in for the synthesis filter.")
     fc_lr: Optional[float] = Field(None, gt=0.0, description="Adam lr of the force-closure refinement (None = synthesis.optimizer.refine_lr).")
     fc_order: Literal["after", "before"] = Field(
         "after",
