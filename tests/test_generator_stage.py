@@ -232,3 +232,28 @@ def test_generated_table_reads_like_a_synthesis_table(trained, tmp_path, capsys)
     assert written["contact_ratio"].between(0.0, 1.0).all()
     assert table_main([*argv, "--checkpoint", str(tmp_path / "missing.pt")]) == 2
     assert "is not a file" in capsys.readouterr().err
+
+
+def test_a_generator_trained_elsewhere_is_adopted_by_its_unit(trained, tmp_path, capsys):
+    """benchmarks.gpu_check.generator_job: export the stage's training data, train it (here on the CPU, in the
+    README on a GPU machine), copy the checkpoint into the unit folder the export names: the stage adopts it
+    (resumed at its last step, nothing left to train) and then serves it from cache."""
+    import shutil
+
+    from benchmarks.gpu_check import generator_job
+
+    workdir, base, _, _ = trained
+    sets = [*_tool_source_args(trained), "--set", "generator.model.train_steps=4"]
+    assert generator_job.main(["export", *sets, "--out", str(tmp_path / "job")]) == 0
+    folder = Path(capsys.readouterr().out.strip().splitlines()[-1].split("train-generator unit: ")[1])
+    assert not folder.exists()
+    assert generator_job.main(["train", "--data", str(tmp_path / "job" / "dataset.pt"), "--out", str(tmp_path / "gpu"),
+                               "--device", "cpu"]) == 0
+    folder.mkdir(parents=True)
+    shutil.copyfile(tmp_path / "gpu" / "generator.pt", folder / "generator.pt")
+    run = [*base, "--set", "generator.model.train_steps=4"]
+    assert main(["run", *run, "--only", "train-generator"]) == 0
+    manifest = read_manifest(folder)
+    assert manifest.meta["resumed_from"] == 4 and manifest.meta["extended_from"] == ""
+    done = executions(workdir)
+    assert main(["run", *run, "--only", "train-generator"]) == 0 and executions(workdir) == done
