@@ -313,12 +313,20 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(INTERRUPTED_MESSAGE, file=sys.stderr)
         return EXIT_INTERRUPTED
+    except RuntimeError as exc:
+        if "ephemeral Prefect API server" not in str(exc):
+            raise
+        print(f"error: {SERVER_TIMEOUT_MESSAGE}", file=sys.stderr)
+        return EXIT_USER_ERROR
     finally:
         if not stopper.count:  # after an interrupt, keep the handler: a second signal during shutdown stops at once
             for signum, handler in previous.items():
                 signal.signal(signum, handler)
 
 
+SERVER_TIMEOUT_MESSAGE = ("Prefect's temporary API server did not start in time (is the machine busy?); nothing was "
+                          "lost — run the same command again, or allow it longer with "
+                          "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS=300")
 INTERRUPTED_MESSAGE = "interrupted — finished units are kept; run the same command again to resume"
 
 

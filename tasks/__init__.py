@@ -11,6 +11,10 @@ PREFECT_ENV_DEFAULTS = {
     "PREFECT_LOGGING_LEVEL": "WARNING",           # the CLI prints its own progress lines
     "PREFECT_RESULTS_PERSIST_BY_DEFAULT": "true",
     "PREFECT_UI_ENABLED": "false",
+    # Prefect's default (20 s) for its temporary local API server to start was too short on a busy 2-core machine:
+    # beside a synthesis run, `multigrasp run` stopped with "Timed out while attempting to connect to ephemeral
+    # Prefect API server" (thirty-fifth session).
+    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
 }
 
 for _name, _value in PREFECT_ENV_DEFAULTS.items():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
@@ -157,6 +158,27 @@ def test_user_error_inside_a_unit_is_one_line_without_traceback(tmp_path, capsys
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1].startswith("error: could not place cube, sphere")
+
+
+def test_prefect_server_start_timeout_is_one_line_and_other_runtime_errors_are_not_hidden(tmp_path, capsys,
+                                                                                       monkeypatch):
+    import flows.cli
+
+    def slow_server(args, **kwargs):
+        raise RuntimeError("Timed out while attempting to connect to ephemeral Prefect API server.")
+
+    monkeypatch.setattr(flows.cli, "_cmd_run", slow_server)
+    assert flows.cli.main(["run", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS" in err[0]
+    assert os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] == "120"  # the project's default
+
+    def bug(args, **kwargs):
+        raise RuntimeError("something else")
+
+    monkeypatch.setattr(flows.cli, "_cmd_run", bug)
+    with pytest.raises(RuntimeError, match="something else"):
+        flows.cli.main(["run", "--profile", "smoke", "--workdir", str(tmp_path)])
 
 
 def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
