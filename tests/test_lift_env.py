@@ -409,3 +409,33 @@ def test_action_repeat_holds_the_action_and_sums_the_reward(hand, library, recor
     assert np.allclose(r4, [sum(r1[:4]), sum(r1[4:])], rtol=1e-5, atol=1e-6)
     assert np.array_equal(s4[0], s1[3]) and np.array_equal(s4[1], s1[7])
     assert d4 == [False, True] and d1[-1] and not any(d1[:-1])
+
+
+def test_joint_offset_mode_sets_targets_from_the_anchor_and_does_not_drift(hand, library, record, tmp_path):
+    """joint_action_mode 'offset': targets = coupled(anchor + joint_offset_rad * clip(a)), the anchor being the
+    targets the episode started from; holding an action holds the targets (no drift, unlike 'delta'), and a zero
+    action returns them to the anchor."""
+    cfg = LiftEnvConfig(joint_action_mode="offset", joint_offset_rad=0.25, closure_steps=0)
+    environment = LiftEnv(hand, library, hand.export_urdf(tmp_path / "urdf"), [record], cfg,
+                          PointNetEncoder(PointNetConfig()).eval())
+    try:
+        world = environment.world
+        world.reset(record)
+        anchor = world.targets.copy()
+        action = np.zeros(24, dtype=np.float32)
+        action[3], action[7], action[12] = 0.4, -0.8, 1.7  # the last is clipped to 1
+        expected = anchor.copy()
+        expected[world._actuated] += 0.25 * np.clip(action[:18].astype(np.float64), -1.0, 1.0)
+        for _ in range(3):  # held: the same targets every step
+            world.set_action(action)
+            assert np.array_equal(world.targets, world.coupled(expected))
+        world.set_action(np.zeros(24, dtype=np.float32))
+        assert np.array_equal(world.targets, world.coupled(anchor))
+        # targets set from outside (the grasp closure, reaching) become the new anchor
+        moved = anchor.copy()
+        moved[world._actuated[0]] += 0.1
+        world.set_joint_targets(moved)
+        world.set_action(np.zeros(24, dtype=np.float32))
+        assert np.allclose(world.targets, np.clip(moved, world.lower, world.upper))
+    finally:
+        environment.close()

@@ -7,6 +7,8 @@ heights and the point-cloud sizes of the observation's feature blocks.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field, model_validator
 
 from components.config_base import Section
@@ -60,6 +62,15 @@ class LiftEnvConfig(Section):
         "PPO's exploration noise on the joint actions opens them again.  Closure then a lift at 4 N with Gaussian "
         "noise (std before the tanh) on 60 bench training pre-grasps: 0.075 -> 0/60 at std 0.5, 1/60 at 0.2; "
         "0.02 -> 1/60 at 0.5, 2/60 at 0.2; no noise 4/60 (README 'Grasp closure').")
+    joint_action_mode: Literal["delta", "offset"] = Field(
+        "delta",
+        description="How a[:18] sets the joint targets.  'delta': they move by joint_delta_rad * a per environment step "
+        "(integrating: a held action drifts the fingers, and exploration noise random-walks them).  'offset': they are "
+        "anchor + joint_offset_rad * a, the anchor being the targets the episode starts from (after the grasp closure: "
+        "its targets), so zero holds the grasp, a held action holds one posture and noise does not accumulate "
+        "(docs/experiments.md, 'Joint offsets instead of joint rates').")
+    joint_offset_rad: float = Field(
+        0.3, gt=0.0, description="joint_action_mode 'offset': the joint target offset from the anchor at action +-1 (rad).")
     joint_position_gain: float = Field(0.3, gt=0.0, description="PyBullet POSITION_CONTROL position gain of every finger joint.")
     joint_velocity_gain: float = Field(1.0, ge=0.0, description="PyBullet POSITION_CONTROL velocity gain of every finger joint.")
     joint_max_force_nm: float = Field(

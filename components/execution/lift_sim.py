@@ -10,7 +10,9 @@ link frame; the palm frame of the FK is  T_palm = T_com * T_inertial^-1  with T_
 inertial frame (``getDynamicsInfo``).  Every pose this module takes or returns is the palm frame.
 
 Actions (paper table: 24-D).  a[:18] in [-1, 1] moves the 18 actuated joint targets by
-``joint_delta_rad * a`` (J0 of FF/MF/RF/LF follows J1, the tendon coupling); a[18:21] and a[21:24] are the
+``joint_delta_rad * a`` per step (``joint_action_mode: delta``), or puts them at ``anchor + joint_offset_rad * a``
+(``offset``; the anchor is the targets the episode starts from: the pre-grasp's angles, or the closure's targets);
+J0 of FF/MF/RF/LF follows J1 (the tendon coupling); a[18:21] and a[21:24] are the
 base force and torque in the world frame, times ``max_base_force_n`` / ``max_base_torque_nm``.  With
 ``gravity_compensation`` the hand's weight is cancelled at its centre of mass every physics step.
 """
@@ -222,6 +224,7 @@ class LiftWorld:
         self.objects: list[int] = []
         self._object_names: tuple[str, ...] = ()
         self._targets: list = [0.0] * len(self.joint_index)  # (22,) current joint targets (:attr:`targets`)
+        self._anchor: list = list(self._targets)  # (22,) targets that joint_action_mode 'offset' adds its offsets to
         self.record: GraspRecord | None = None
         #: Wall seconds spent in :meth:`step`'s physics substeps (wrench + ``stepSimulation``) since construction;
         #: ``multigrasp bench sim`` divides its change by the env loop's time (``physics_share``).
@@ -254,6 +257,7 @@ class LiftWorld:
         for index, angle in zip(self.joint_index, q):
             pb.resetJointState(self.body, index, float(angle), 0.0, physicsClientId=c)
         self._targets = np.clip(q, self.lower, self.upper).tolist()
+        self._anchor = list(self._targets)
         self._send_targets()
         self.record = record
         return self.read()
@@ -310,8 +314,10 @@ class LiftWorld:
         return GraspRecord(scene=record.scene, p=p, R=record.R, q=self.coupled(q), meta=record.meta)
 
     def set_joint_targets(self, q: np.ndarray) -> None:
-        """Joint position targets (22,), clamped to the limits (reaching drives the fingers with them)."""
+        """Joint position targets (22,), clamped to the limits (reaching and the closure drive the fingers with them);
+        they are also the anchor of ``joint_action_mode: offset``, so a zero action then holds them."""
         self._targets = np.clip(np.asarray(q, dtype=np.float64), self.lower, self.upper).tolist()
+        self._anchor = list(self._targets)
         self._send_targets()
 
     @property
@@ -327,18 +333,21 @@ class LiftWorld:
     def set_action(self, action: np.ndarray) -> tuple[list, list]:
         """Apply the joint part of a (24,) action to the targets; return the base (force, torque) it asks for.
 
-        The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]), done on
-        Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
+        The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]; with
+        ``joint_action_mode: offset``, on ``anchor + joint_offset_rad * a``), done on Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
         values = action.tolist() if isinstance(action, np.ndarray) else list(action)  # float32 -> float exactly
         if any(x != x for x in values):  # NaN: min/max below would turn it into -1 without a word
             raise ValueError("the lift env got an action with NaN entries: the policy's output diverged (check its "
                              "learning rate / observation normalisation, or resume from an earlier checkpoint)")
         a = [min(1.0, max(-1.0, float(x))) for x in values]
         self.last_action = a
-        delta, lower, upper = self.cfg.joint_delta_rad, self._lower_list, self._upper_list
-        q = list(self._targets)
+        lower, upper = self._lower_list, self._upper_list
+        if self.cfg.joint_action_mode == "offset":
+            scale, q = self.cfg.joint_offset_rad, list(self._anchor)
+        else:
+            scale, q = self.cfg.joint_delta_rad, list(self._targets)
         for i, k in enumerate(self._actuated_list):
-            q[k] += delta * a[i]
+            q[k] += scale * a[i]
         q = [min(hi, max(lo, x)) for x, lo, hi in zip(q, lower, upper)]
         for follower, leader, ratio, offset in self._coupling_list:
             q[follower] = min(upper[follower], max(lower[follower], offset + ratio * q[leader]))
