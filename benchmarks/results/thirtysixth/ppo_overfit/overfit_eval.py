@@ -12,7 +12,7 @@ from tasks.specialists import squeeze_lift
 from components.hand import HandModel
 
 unit = Path(sys.argv[1]); trials = int(sys.argv[2]); seed = int(sys.argv[3])
-sets = [l for l in open(Path(__file__).with_name("sets.txt")).read().split("\n") if l]
+sets = [l for l in open(Path(__file__).with_name("sets.txt")).read().split("\n") if l] + sys.argv[6:]  # extra KEY=VALUE
 cfg = load_config("bench", None, sets, workdir=Path(sys.argv[5]))
 enc = stage_output(cfg, "pointnet")
 encoder = enc.path("encoder")
