@@ -250,6 +250,28 @@ def test_independent_std_starts_at_init_scale_and_is_one_learned_parameter_per_a
         env.close()
 
 
+def test_block_scales_start_each_action_block_at_its_own_std(factory):
+    """init_scale_by_block: joints / base force / base torque start at their own std, unnamed blocks at init_scale;
+    a state std or a non-positive scale is refused at config time."""
+    from components.execution.ppo import build_actor_critic
+
+    env = factory()
+    try:
+        cfg = PPOConfig(**TINY_PPO, std_mode="independent", init_scale=0.07,
+                        init_scale_by_block={"joints": 0.02, "base_force": 0.5})
+        actor, _, _ = build_actor_critic(env, cfg)
+        with torch.no_grad():
+            scale = actor(env.reset())["scale"]
+        expected = torch.tensor([0.02] * 18 + [0.5] * 3 + [0.07] * 3)
+        assert torch.allclose(scale, expected)
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="std_mode 'independent'"):
+        PPOConfig(**TINY_PPO, init_scale_by_block={"joints": 0.02})
+    with pytest.raises(ValueError, match="positive"):
+        PPOConfig(**TINY_PPO, std_mode="independent", init_scale_by_block={"joints": 0.0})
+
+
 def test_gradient_clip_groups_are_the_parameters_the_optimiser_steps(factory):
     """grad_clip 'separate' clips the actor's and the critic's gradients apart; the groups must be the very tensors
     the loss module optimises, or the clip would act on copies."""

@@ -46,7 +46,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from components.errors import MultigraspError
-from components.execution.ppo_config import EXTENDABLE_FIELDS, PPOConfig  # noqa: F401  (re-exported)
+from components.execution.ppo_config import ACTION_BLOCKS, EXTENDABLE_FIELDS, PPOConfig  # noqa: F401  (re-exported)
 from components.fileio import atomic_write_bytes
 
 
@@ -119,6 +119,14 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
     if independent:
         scale = AddStateIndependentNormalScale(act_dim, scale_mapping="exp", scale_lb=cfg.min_scale,
                                                init_value=math.log(cfg.init_scale))
+        if cfg.init_scale_by_block:
+            if act_dim != ACTION_BLOCKS["base_torque"][1]:
+                raise MultigraspError(f"specialists.ppo.init_scale_by_block names the lift env's 24 action entries, but "
+                                      f"this env has {act_dim}; drop init_scale_by_block")
+            with torch.no_grad():
+                for block, value in cfg.init_scale_by_block.items():
+                    first, last = ACTION_BLOCKS[block]
+                    scale.state_independent_scale[first:last] = math.log(value)
     else:
         scale = NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}")
     actor_net = nn.Sequential(norm, head, scale)
