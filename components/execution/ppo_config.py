@@ -50,8 +50,8 @@ class PPOConfig(Section):
         "(joints a[:18], base_force a[18:21], base_torque a[21:24]); blocks not named keep init_scale.  What it is for: "
         "noise on the joint entries drops the squeeze's grasp, noise on the base force does not (docs/experiments.md, "
         "'Joint offsets instead of joint rates': the squeeze on 10 pre-grasps lifted 30 %, 7 % with joint noise 0.5, "
-        "27 % with base-force noise 0.5), so exploration can be wide on the force and narrow on the fingers.  Not yet "
-        "measured in PPO.")
+        "27 % with base-force noise 0.5), so exploration can be wide on the force and narrow on the fingers.  PPO on those 10 "
+        "pre-grasps with {joints: 0.02, base_force: 0.3}: 26 % against the squeeze's 27 % (100 episodes), no gain.")
     normalize_observations: bool = Field(True, description="Standardise observations with running mean / std (updated from each batch).")
     normalizer_frozen_after: Optional[int] = Field(
         None, ge=1,
