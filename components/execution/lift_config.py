@@ -67,7 +67,8 @@ class LiftEnvConfig(Section):
         description="How a[:18] sets the joint targets.  'delta': they move by joint_delta_rad * a per environment step "
         "(integrating: a held action drifts the fingers, and exploration noise random-walks them).  'offset': they are "
         "anchor + joint_offset_rad * a, the anchor being the targets the episode starts from (after the grasp closure: "
-        "its targets), so zero holds the grasp, a held action holds one posture and noise does not accumulate "
+        "its targets), so zero holds the grasp, a held action holds one posture and noise does not accumulate; "
+        "specialists.squeeze_action then is a fixed offset, not a rate "
         "(docs/experiments.md, 'Joint offsets instead of joint rates').")
     joint_offset_rad: float = Field(
         0.3, gt=0.0, description="joint_action_mode 'offset': the joint target offset from the anchor at action +-1 (rad).")

@@ -166,6 +166,7 @@ class LiftWorld:
     def __init__(self, hand: HandModel, library: ObjectLibrary, urdf: Path, cfg: LiftEnvConfig,
                  table: CameraConfig | None = None):
         self.hand, self.library, self.cfg = hand, library, cfg
+        self._offset_actions = cfg.joint_action_mode == "offset"  # decided once: set_action runs every step
         self.client = pb.connect(pb.DIRECT)
         c = self.client
         pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
@@ -334,7 +335,8 @@ class LiftWorld:
         """Apply the joint part of a (24,) action to the targets; return the base (force, torque) it asks for.
 
         The same arithmetic as :meth:`coupled` on ``targets + joint_delta_rad * a`` (a clipped to [-1, 1]; with
-        ``joint_action_mode: offset``, on ``anchor + joint_offset_rad * a``), done on Python floats: 24 numbers, for which each numpy call between physics steps costs more than the work."""
+        ``joint_action_mode: offset``, on ``anchor + joint_offset_rad * a``), done on Python floats: 24 numbers, for
+        which each numpy call between physics steps costs more than the work."""
         values = action.tolist() if isinstance(action, np.ndarray) else list(action)  # float32 -> float exactly
         if any(x != x for x in values):  # NaN: min/max below would turn it into -1 without a word
             raise ValueError("the lift env got an action with NaN entries: the policy's output diverged (check its "
@@ -342,7 +344,7 @@ class LiftWorld:
         a = [min(1.0, max(-1.0, float(x))) for x in values]
         self.last_action = a
         lower, upper = self._lower_list, self._upper_list
-        if self.cfg.joint_action_mode == "offset":
+        if self._offset_actions:
             scale, q = self.cfg.joint_offset_rad, list(self._anchor)
         else:
             scale, q = self.cfg.joint_delta_rad, list(self._targets)

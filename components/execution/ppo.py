@@ -46,8 +46,13 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from components.errors import MultigraspError
-from components.execution.ppo_config import ACTION_BLOCKS, EXTENDABLE_FIELDS, PPOConfig  # noqa: F401  (re-exported)
+from components.execution.lift_sim import N_JOINT_ACTIONS, N_WRENCH
+from components.execution.ppo_config import EXTENDABLE_FIELDS, PPOConfig  # noqa: F401  (re-exported)
 from components.fileio import atomic_write_bytes
+
+#: PPOConfig.init_scale_by_block's blocks: (first, last) entries of the lift env's action.
+ACTION_BLOCKS = {"joints": (0, N_JOINT_ACTIONS), "base_force": (N_JOINT_ACTIONS, N_JOINT_ACTIONS + 3),
+                 "base_torque": (N_JOINT_ACTIONS + 3, N_JOINT_ACTIONS + N_WRENCH)}
 
 
 #: The batch key GAE reads: the env's reward times ``PPOConfig.reward_scale`` (the env's own reward stays as it is).
@@ -120,7 +125,7 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
         scale = AddStateIndependentNormalScale(act_dim, scale_mapping="exp", scale_lb=cfg.min_scale,
                                                init_value=math.log(cfg.init_scale))
         if cfg.init_scale_by_block:
-            if act_dim != ACTION_BLOCKS["base_torque"][1]:
+            if act_dim != N_JOINT_ACTIONS + N_WRENCH:
                 raise MultigraspError(f"specialists.ppo.init_scale_by_block names the lift env's 24 action entries, but "
                                       f"this env has {act_dim}; drop init_scale_by_block")
             with torch.no_grad():

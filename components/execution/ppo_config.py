@@ -9,9 +9,6 @@ from pydantic import Field, PositiveInt, model_validator
 
 from components.config_base import Section
 
-#: The lift env's action blocks (components.execution.lift_sim): a[:18] joints, a[18:21] base force, a[21:24] base torque.
-ACTION_BLOCKS = {"joints": (0, 18), "base_force": (18, 21), "base_torque": (21, 24)}
-
 #: PPOConfig fields a finished training can be continued across: raising ``iterations`` trains on from the last
 #: checkpoint (``checkpoint_every`` only says when checkpoints are written).
 EXTENDABLE_FIELDS = frozenset({"iterations", "checkpoint_every"})
