@@ -268,8 +268,55 @@ def test_block_scales_start_each_action_block_at_its_own_std(factory):
         env.close()
     with pytest.raises(ValueError, match="std_mode 'independent'"):
         PPOConfig(**TINY_PPO, init_scale_by_block={"joints": 0.02})
+    PPOConfig(**TINY_PPO, exploration="gsde", init_scale_by_block={"joints": 0.02})  # gSDE has per-entry scales too
     with pytest.raises(ValueError, match="positive"):
         PPOConfig(**TINY_PPO, std_mode="independent", init_scale_by_block={"joints": 0.0})
+
+
+def test_gsde_holds_its_noise_scores_it_as_tanh_normal_and_trains(factory, tmp_path):
+    """exploration 'gsde': the untrained mean is init_action; each entry's std starts at its init scale whatever the
+    state; an exploring policy repeats its perturbation on the same state until the noise is drawn again; the stored
+    log-probability is TanhNormal(loc, scale)'s; deterministic calls do not explore; PPO trains and load_actor serves it."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.modules import TanhNormal
+
+    from components.execution.ppo import GSDEHead, build_actor_critic, load_actor
+
+    env = factory()
+    try:
+        init = torch.linspace(-0.5, 0.5, env.action_spec.shape[-1])
+        cfg = PPOConfig(**TINY_PPO, exploration="gsde", init_scale=0.07, init_scale_by_block={"joints": 0.02},
+                        gsde_resample_every=3)
+        actor, _, _ = build_actor_critic(env, cfg, init_action=init)
+        head = next(m for m in actor.modules() if isinstance(m, GSDEHead))
+        td = env.reset()
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            out = actor(td.clone())
+        assert torch.allclose(out["action"], init, atol=1e-5)
+        assert torch.allclose(out["scale"], torch.tensor([0.02] * 18 + [0.07] * 6), atol=1e-6)
+        assert torch.count_nonzero(out["gsde_noise"]) == 0
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+            draws = [actor(td.clone()) for _ in range(4)]
+        assert torch.equal(draws[0]["action"], draws[1]["action"]) and torch.equal(draws[1]["action"], draws[2]["action"])
+        assert not torch.equal(draws[2]["action"], draws[3]["action"])  # a fresh noise matrix after 3 calls
+        assert not torch.allclose(draws[0]["action"], init, atol=1e-4)
+        first = draws[0]
+        low, high = env.action_spec.space.low, env.action_spec.space.high
+        expected = TanhNormal(first["loc"], first["scale"], low=low, high=high).log_prob(first["action"])
+        assert torch.allclose(first["action_log_prob"], expected, atol=1e-4)
+        assert head._calls == 4  # deterministic calls did not advance the noise schedule
+    finally:
+        env.close()
+    ckpt = tmp_path / "gsde.pt"
+    result = train_ppo(factory, PPOConfig(iterations=2, **{**TINY_PPO, "exploration": "gsde"}), ckpt)
+    assert len(result.history) == 2 and all(math.isfinite(row["loss_objective"]) for row in result.history)
+    env = factory()
+    try:
+        served = load_actor(ckpt, env, which="last")
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            assert served(env.reset())["action"].shape == env.action_spec.shape
+    finally:
+        env.close()
 
 
 def test_gradient_clip_groups_are_the_parameters_the_optimiser_steps(factory):

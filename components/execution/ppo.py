@@ -37,10 +37,12 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule
 from torch import nn
+from torch.distributions.utils import _sum_rightmost
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
@@ -96,6 +98,91 @@ class RunningNorm(nn.Module):
         return ((x - self.mean) / torch.sqrt(self.var + self.eps)).clamp(-10.0, 10.0)
 
 
+class HeldNoiseTanhNormal(TanhNormal):
+    """TanhNormal(loc, scale) whose single draws are tanh(loc + noise) with a given ``noise`` (gSDE's state-dependent
+    perturbation, :class:`GSDEHead`) instead of fresh Gaussian noise.  Densities, deterministic samples and draws of
+    a sample shape (entropy estimates) are TanhNormal's: given the state, gSDE's pre-tanh action is Normal(loc,
+    scale) with scale the head's marginal std, so the log-probability PPO's ratio needs is the usual one."""
+
+    def __init__(self, loc: torch.Tensor, scale: torch.Tensor, noise: Optional[torch.Tensor] = None, **kwargs):
+        super().__init__(loc, scale, **kwargs)
+        self.noise = noise
+
+    def _held_preimage(self, sample_shape) -> Optional[torch.Tensor]:
+        if self.noise is None or len(torch.Size(sample_shape)) > 0:
+            return None
+        return self.root_dist.loc + self.noise
+
+    def _squash(self, preimage: torch.Tensor) -> torch.Tensor:
+        for t in self.transforms:
+            preimage = t(preimage)
+        return preimage
+
+    def rsample(self, sample_shape=torch.Size()):
+        pre = self._held_preimage(sample_shape)
+        return super().rsample(sample_shape) if pre is None else self._squash(pre)
+
+    def sample(self, sample_shape=torch.Size()):
+        pre = self._held_preimage(sample_shape)
+        return super().sample(sample_shape) if pre is None else self._squash(pre).detach()
+
+    def _held_and_log_prob(self, pre: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The draw of the pre-tanh value ``pre`` and its log-probability, scored at ``pre`` itself (as TanhNormal's
+        *_and_log_prob: inverting a saturated tanh would score a different value)."""
+        transform = self.transforms[0]
+        sample = transform(pre)
+        log_prob = self.base_dist.log_prob(pre) - _sum_rightmost(transform.log_abs_det_jacobian(pre, sample),
+                                                                   len(self.event_shape))
+        return sample, log_prob
+
+    def rsample_and_log_prob(self, sample_shape=torch.Size()):
+        pre = self._held_preimage(sample_shape)
+        return super().rsample_and_log_prob(sample_shape) if pre is None else self._held_and_log_prob(pre)
+
+    def sample_and_log_prob(self, sample_shape=torch.Size()):
+        pre = self._held_preimage(sample_shape)
+        if pre is None:
+            return super().sample_and_log_prob(sample_shape)
+        sample, log_prob = self._held_and_log_prob(pre)
+        return sample.detach(), log_prob
+
+
+class GSDEHead(nn.Module):
+    """Generalised state-dependent exploration (Raffin, Kober & Stulp 2021) over the actor's last hidden layer z:
+
+        loc = W z + b,   z' = stopgrad(z) / |z|,   scale_j = sqrt(sum_i z'_i^2 sigma_ij^2),
+        noise_j = sum_i z'_i sigma_ij eps_ij   (only when exploring; 0 otherwise),
+
+    sigma = exp(log_sigma) (floored at ``min_scale``; hidden x action, learned), eps ~ N(0, 1) of the same shape,
+    drawn again every ``resample_every`` exploring calls or when the batch shape changes.  z is scaled to unit length
+    so that a uniform sigma gives every action entry that std whatever the state (torchrl's ``gSDEModule`` and SB3
+    use z as it is).  eps is per-process exploration state, not a buffer: the learner's weight pushes do not
+    overwrite a collector's draw, and checkpoints do not hold it."""
+
+    def __init__(self, latent_dim: int, act_dim: int, init_scale: torch.Tensor, min_scale: float, resample_every: int):
+        super().__init__()
+        self.mean = nn.Linear(latent_dim, act_dim)
+        self.log_sigma = nn.Parameter(torch.log(init_scale).expand(latent_dim, act_dim).clone())
+        self.min_scale = min_scale
+        self.resample_every = resample_every
+        self._eps: Optional[torch.Tensor] = None
+        self._calls = 0
+
+    def forward(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        loc = self.mean(latent)
+        z = nn.functional.normalize(latent.detach(), dim=-1)
+        sigma = self.log_sigma.exp().clamp_min(self.min_scale)
+        scale = (z.pow(2) @ sigma.pow(2)).clamp_min(1e-12).sqrt()
+        if exploration_type() != ExplorationType.RANDOM:
+            return loc, scale, torch.zeros_like(loc)
+        shape = (*z.shape, sigma.shape[-1])
+        if self._eps is None or self._eps.shape != shape or self._calls % self.resample_every == 0:
+            self._eps = torch.randn(shape, dtype=sigma.dtype, device=sigma.device)
+        self._calls += 1
+        noise = (z.unsqueeze(-2) @ (sigma * self._eps)).squeeze(-2)
+        return loc, scale, noise
+
+
 def _mlp(dim_in: int, dim_out: int, cfg: PPOConfig) -> MLP:
     return MLP(in_features=dim_in, out_features=dim_out, num_cells=list(cfg.hidden), activation_class=nn.Tanh)
 
@@ -109,6 +196,8 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     norm = RunningNorm(obs_dim)
+    if cfg.exploration == "gsde":
+        return _build_gsde_actor(env, cfg, init_action, norm), _critic(norm, obs_dim, cfg), norm
     independent = cfg.std_mode == "independent"
     head = _mlp(obs_dim, act_dim if independent else 2 * act_dim, cfg)
     with torch.no_grad():
@@ -117,10 +206,9 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
         head[-1].weight[:act_dim].zero_()
         head[-1].weight[act_dim:].mul_(0.01)  # state std: scale = biased softplus(x), starting near init_scale
         head[-1].bias.zero_()
-        if init_action is not None:
-            low, high = env.action_spec.space.low, env.action_spec.space.high
-            unit = (2.0 * (init_action.to(low) - low) / (high - low) - 1.0).clamp(-0.999, 0.999)
-            head[-1].bias[:act_dim] = torch.atanh(unit)  # TanhNormal's mean action is tanh(loc) in the box
+        unit = _init_unit(env, init_action)
+        if unit is not None:
+            head[-1].bias[:act_dim] = unit  # TanhNormal's mean action is tanh(loc) in the box
     if independent:
         scale = AddStateIndependentNormalScale(act_dim, scale_mapping="exp", scale_lb=cfg.min_scale,
                                                init_value=math.log(cfg.init_scale))
@@ -140,8 +228,52 @@ def build_actor_critic(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch
         in_keys=["loc", "scale"], spec=env.action_spec, distribution_class=TanhNormal,
         distribution_kwargs={"low": env.action_spec.space.low, "high": env.action_spec.space.high},
         return_log_prob=True)
-    critic = ValueOperator(nn.Sequential(norm, _mlp(obs_dim, 1, cfg)), in_keys=["observation"])
-    return actor, critic, norm
+    return actor, _critic(norm, obs_dim, cfg), norm
+
+
+def _critic(norm: RunningNorm, obs_dim: int, cfg: PPOConfig) -> ValueOperator:
+    return ValueOperator(nn.Sequential(norm, _mlp(obs_dim, 1, cfg)), in_keys=["observation"])
+
+
+def _init_unit(env: EnvBase, init_action: Optional[torch.Tensor]) -> Optional[torch.Tensor]:
+    """atanh of ``init_action`` mapped into (-1, 1): the pre-tanh bias whose TanhNormal mean action is it."""
+    if init_action is None:
+        return None
+    low, high = env.action_spec.space.low, env.action_spec.space.high
+    return torch.atanh((2.0 * (init_action.to(low) - low) / (high - low) - 1.0).clamp(-0.999, 0.999))
+
+
+def _build_gsde_actor(env: EnvBase, cfg: PPOConfig, init_action: Optional[torch.Tensor], norm: RunningNorm
+                      ) -> ProbabilisticActor:
+    """exploration 'gsde': normaliser -> hidden MLP (tanh after every layer) -> :class:`GSDEHead` -> tanh-Gaussian
+    whose draws are the head's held noise (:class:`HeldNoiseTanhNormal`)."""
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    act_dim = env.action_spec.shape[-1]
+    hidden = list(cfg.hidden)
+    body = MLP(in_features=obs_dim, out_features=hidden[-1], num_cells=hidden[:-1], activation_class=nn.Tanh,
+               activate_last_layer=True)
+    init_scale = torch.full((act_dim,), float(cfg.init_scale))
+    if cfg.init_scale_by_block:
+        if act_dim != N_JOINT_ACTIONS + N_WRENCH:
+            raise MultigraspError(f"specialists.ppo.init_scale_by_block names the lift env's 24 action entries, but "
+                                  f"this env has {act_dim}; drop init_scale_by_block")
+        for block, value in cfg.init_scale_by_block.items():
+            first, last = ACTION_BLOCKS[block]
+            init_scale[first:last] = value
+    head = GSDEHead(hidden[-1], act_dim, init_scale, cfg.min_scale, cfg.gsde_resample_every)
+    with torch.no_grad():  # the untrained mean action is init_action whatever the observation (as the gaussian actor)
+        head.mean.weight.zero_()
+        head.mean.bias.zero_()
+        unit = _init_unit(env, init_action)
+        if unit is not None:
+            head.mean.bias.copy_(unit)
+    net = TensorDictModule(nn.Sequential(norm, body, head), in_keys=["observation"],
+                           out_keys=["loc", "scale", "gsde_noise"])
+    return ProbabilisticActor(
+        net, in_keys={"loc": "loc", "scale": "scale", "noise": "gsde_noise"}, spec=env.action_spec,
+        distribution_class=HeldNoiseTanhNormal,
+        distribution_kwargs={"low": env.action_spec.space.low, "high": env.action_spec.space.high},
+        return_log_prob=True)
 
 
 # ============================================================================ training

@@ -43,7 +43,7 @@ class PPOConfig(Section):
         "1.0 % (the learning rate made the difference; 0.05 kept as the best measured setting).")
     init_scale_by_block: Optional[dict[Literal["joints", "base_force", "base_torque"], float]] = Field(
         None,
-        description="std_mode 'independent' only: initial action standard deviation per block of the lift env's action "
+        description="std_mode 'independent' or exploration 'gsde' only: initial action standard deviation per block of the lift env's action "
         "(joints a[:18], base_force a[18:21], base_torque a[21:24]); blocks not named keep init_scale.  What it is for: "
         "noise on the joint entries drops the squeeze's grasp, noise on the base force does not (docs/experiments.md, "
         "'Joint offsets instead of joint rates': the squeeze on 10 pre-grasps lifted 30 %, 7 % with joint noise 0.5, "
@@ -74,6 +74,21 @@ class PPOConfig(Section):
         "shrink or grow per state, and in run D of docs/experiments.md it collapsed (entropy -38 -> -97).  'independent': one "
         "learned log-std per action dimension (tensordict's AddStateIndependentNormalScale, as torchrl's MuJoCo PPO "
         "recipe), starting at init_scale, floored at min_scale.")
+    exploration: Literal["gaussian", "gsde"] = Field(
+        "gaussian",
+        description="How the collecting policy explores.  'gaussian': fresh noise at every step (std per std_mode).  "
+        "'gsde': generalised state-dependent exploration (Raffin, Kober & Stulp 2021, 'Smooth Exploration for Robotic "
+        "Reinforcement Learning'): the pre-tanh action is mean + (sigma * eps)^T z, with z the actor's last hidden "
+        "layer (detached, scaled to unit length) and eps a noise matrix held for gsde_resample_every policy steps, so "
+        "the perturbation is a smooth function of the state instead of white noise.  What it is for: white noise on "
+        "the finger entries at every step drops the squeeze's grasp (docs/experiments.md, 'Joint offsets instead of "
+        "joint rates').  sigma (hidden width x action entries, learned) starts at init_scale (init_scale_by_block per "
+        "block), so the per-entry std starts at init_scale as in 'gaussian'; std_mode is not used.")
+    gsde_resample_every: int = Field(
+        100, ge=1,
+        description="exploration 'gsde': policy steps each noise matrix is held for in a collector (100 = one episode "
+        "of the lift env's default max_steps).  Counted per collector process; deterministic calls (validation, "
+        "evaluation, the loss) neither use nor advance it.")
     min_scale: float = Field(1e-3, gt=0.0, description="Lower bound of the state-independent standard deviation (std_mode 'independent').")
     grad_clip: Literal["joint", "separate"] = Field(
         "separate",
@@ -107,9 +122,9 @@ class PPOConfig(Section):
     @model_validator(mode="after")
     def _block_scales_need_independent_std(self) -> "PPOConfig":
         if self.init_scale_by_block is not None:
-            if self.std_mode != "independent":
-                raise ValueError("init_scale_by_block needs std_mode 'independent' (a state std has no per-entry start); "
-                                 "set specialists.ppo.std_mode=independent or drop init_scale_by_block")
+            if self.std_mode != "independent" and self.exploration != "gsde":
+                raise ValueError("init_scale_by_block needs std_mode 'independent' or exploration 'gsde' (a state std has no "
+                                 "per-entry start); set specialists.ppo.std_mode=independent or drop init_scale_by_block")
             if any(not v > 0 for v in self.init_scale_by_block.values()):
                 raise ValueError("init_scale_by_block: every scale must be positive")
         return self
