@@ -128,6 +128,19 @@ def test_reward_terms_vanish_at_the_goal(env, record):
         assert terms[name] == pytest.approx(0.0, abs=1e-6), name
 
 
+def test_lift_reward_cap_stops_paying_for_height_above_it(env, record):
+    """lift_reward_cap_m: r_lift = min(lift, cap); the success bonus and the reported lift stay uncapped."""
+    env.reset()
+    state = env.world.read()
+    start = state.obj_pos[:, 2].copy() - 0.4  # as if every object had been lifted 0.4 m
+    goal = Goal.from_state(state)
+    free = reward_terms(env.cfg, state, goal, start)
+    capped = reward_terms(env.cfg.model_copy(update={"lift_reward_cap_m": 0.15}), state, goal, start)
+    assert free["r_lift"] == pytest.approx(0.4) and capped["r_lift"] == pytest.approx(0.15)
+    assert capped["lift"] == pytest.approx(0.4) and capped["r_success"] == free["r_success"] == 1.0
+    assert free["reward"] - capped["reward"] == pytest.approx(env.cfg.w_lift * 0.25)
+
+
 def test_observation_blocks_hold_the_state_after_steps(env, record):
     """The preallocated observation buffer is rewritten every step: each block equals its definition."""
     from components.execution.observations import wrap_angle

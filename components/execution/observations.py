@@ -236,8 +236,8 @@ def worst_step_reward(cfg: LiftEnvConfig, n_objects: int, joint_ranges: Sequence
 def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_heights: np.ndarray) -> dict[str, float]:
     """The paper's reward (Eq. rl-rewards) and its terms:
 
-        r = w_lift min_j h_j + w_succ 1[min_j h_j > success_height] + w_r r_r + w_q r_q + w_obj r_obj,
-        h_j = z_j - z_j(0),  r_r = -angle(R_goal^T R),  r_q = -mean |q - q_goal|,
+        r = w_lift min(min_j h_j, lift_reward_cap) + w_succ 1[min_j h_j > success_height] + w_r r_r + w_q r_q + w_obj r_obj,
+        h_j = z_j - z_j(0)  (no cap when lift_reward_cap_m is None, the paper's term),  r_r = -angle(R_goal^T R),  r_q = -mean |q - q_goal|,
         r_obj = -sum_j min(|p_j^palm - p_j^palm,goal|, object_distance_clip_m).
 
     Without goal observations ('w/o Goal') the three goal terms are off.  -> dict with 'reward' and terms.
@@ -245,8 +245,9 @@ def reward_terms(cfg: LiftEnvConfig, state: WorldState, goal: Goal, start_height
     which each numpy call would cost more than the arithmetic."""
     lift = lift_height(state, start_heights)
     success = float(lift > cfg.success_height_m)
-    terms = {"r_lift": lift, "r_success": success}
-    reward = cfg.w_lift * lift + cfg.w_success * success
+    r_lift = lift if cfg.lift_reward_cap_m is None else min(lift, cfg.lift_reward_cap_m)
+    terms = {"r_lift": r_lift, "r_success": success}
+    reward = cfg.w_lift * r_lift + cfg.w_success * success
     if cfg.goal_observations:
         pos_palm, _ = state.objects_in_palm_pose
         terms["r_rot"] = -quaternion_angle(goal.palm_quat, state.palm_quat)
