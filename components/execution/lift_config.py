@@ -129,8 +129,9 @@ class LiftEnvConfig(Section):
         "is for: at w_lift 10 an object held 0.6 m up earns 6 per step, six times the success bonus, so a policy gains "
         "more by lifting the grasps it already holds higher than by holding one more (docs/experiments.md, 'State-"
         "dependent exploration, gSDE': PPO on 10 pre-grasps raised the reward 1.2 -> 4.3 and the mean final lift "
-        "0.28 -> 0.62 m, and lifted fewer of them).  At success_height_m the term stops paying for height.  The "
-        "evaluation's success and the env's 'lift' output are not capped.")
+        "0.28 -> 0.62 m, and lifted fewer of them).  At success_height_m the term stops paying for height: capped at "
+        "0.15 the same run's sampled success rose 22.7 -> 32.9 % and it lifted 28 % deterministically against the "
+        "squeeze's 27 % (within the noise).  The evaluation's success and the env's 'lift' output are not capped.")
     w_success: float = Field(1.0, ge=0.0, description="omega_succ: bonus per step while every object is lifted above success_height_m.")
     w_rotation: float = Field(0.1, ge=0.0, description="omega_r: weight of r_r = -angle(R_goal^T R) (rad), the palm's rotation away from the pre-grasp.")
     w_joint: float = Field(0.1, ge=0.0, description="omega_q: weight of r_q = -mean_i |q_i - q_goal_i| (rad) over the 22 joints.")

@@ -83,7 +83,10 @@ class PPOConfig(Section):
         "the perturbation is a smooth function of the state instead of white noise.  What it is for: white noise on "
         "the finger entries at every step drops the squeeze's grasp (docs/experiments.md, 'Joint offsets instead of "
         "joint rates').  sigma (hidden width x action entries, learned) starts at init_scale (init_scale_by_block per "
-        "block), so the per-entry std starts at init_scale as in 'gaussian'; std_mode is not used.")
+        "block), so the per-entry std starts at init_scale as in 'gaussian'; std_mode is not used.  Measured with "
+        "lift.joint_action_mode offset on 10 pre-grasps (docs/experiments.md, 'State-dependent exploration, gSDE'): the "
+        "sampled episodes lift 23-33 % against 15-17 % with white noise, and PPO raises its reward 1.2 -> 4.3, but by "
+        "lifting higher, not more often (deterministic 19-26 % against the squeeze's 27 %).")
     gsde_resample_every: int = Field(
         100, ge=1,
         description="exploration 'gsde': policy steps each noise matrix is held for in a collector (100 = one episode "
