@@ -1,6 +1,7 @@
 """PPO for the lift policy with TorchRL (paper §"Learning a Multi-Object Lifting Policy"), in the style of
 torchrl's ``sota-implementations/ppo``: a tanh-Gaussian actor and a value net (MLPs over the observation,
-each behind a running observation normaliser), ``ClipPPOLoss`` + ``GAE``, a ``Collector`` (1 worker,
+each behind a running observation normaliser; ``exploration: gsde`` makes the actor's noise state-dependent and
+held over steps, :class:`GSDEHead`), ``ClipPPOLoss`` + ``GAE``, a ``Collector`` (1 worker,
 in process) or ``MultiSyncCollector`` (several processes), checkpoints with resume.
 
     result = train_ppo(env_factory, PPOConfig(...), checkpoint_path, progress=print)
