@@ -363,6 +363,39 @@ def test_critic_warmup_leaves_the_actor_alone_and_target_kl_stops_the_epochs(fac
     assert 0.0 <= second["clip_fraction"] <= 1.0
 
 
+def test_kl_adaptive_lr_steps_by_its_factor_within_its_bounds_and_needs_a_target():
+    """rl_games' adaptive schedule: KL above 2 x target divides the rate by the factor, below target / 2 multiplies
+    it, in between leaves it; the bounds clamp it; a config without target_kl (or lr outside the bounds) is refused."""
+    from pydantic import ValidationError
+
+    from components.execution.ppo import adapt_lr
+
+    cfg = PPOConfig(lr=1e-3, target_kl=0.02, lr_schedule="kl_adaptive", lr_adapt_factor=2.0, lr_min=4e-4, lr_max=3e-3)
+    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=cfg.lr)
+    assert adapt_lr(optimizer, 0.05, cfg) == pytest.approx(5e-4)   # 0.05 > 0.04: halved
+    assert adapt_lr(optimizer, 0.05, cfg) == pytest.approx(4e-4)   # clamped at lr_min
+    assert adapt_lr(optimizer, 0.02, cfg) == pytest.approx(4e-4)   # within [0.01, 0.04]: kept
+    assert adapt_lr(optimizer, 0.001, cfg) == pytest.approx(8e-4)  # 0.001 < 0.01: doubled
+    assert adapt_lr(optimizer, 0.0, cfg) == pytest.approx(1.6e-3)
+    assert adapt_lr(optimizer, 0.0, cfg) == pytest.approx(3e-3)    # clamped at lr_max
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(3e-3)
+    with pytest.raises(ValidationError, match="target_kl"):
+        PPOConfig(lr_schedule="kl_adaptive")
+    with pytest.raises(ValidationError, match="outside"):
+        PPOConfig(lr_schedule="kl_adaptive", target_kl=0.02, lr=0.1)
+
+
+def test_kl_adaptive_lr_lowers_an_overshooting_rate_and_a_resume_keeps_it(factory, tmp_path):
+    """A target_kl no update can meet: each trained iteration's epoch divides the rate by the factor (the critic's
+    warm-up does not adapt it), the history records it, and a resumed run continues from the adapted rate."""
+    cfg = PPOConfig(iterations=2, **TINY_PPO, critic_warmup_iterations=1, target_kl=1e-9, lr=1e-3,
+                    lr_schedule="kl_adaptive", lr_adapt_factor=2.0, lr_min=1e-5, std_mode="independent")
+    first = train_ppo(factory, cfg, tmp_path / "a.pt").history
+    assert first[0]["lr"] == pytest.approx(1e-3) and first[1]["lr"] == pytest.approx(5e-4)
+    resumed = train_ppo(factory, cfg.model_copy(update={"iterations": 3}), tmp_path / "a.pt")
+    assert resumed.resumed_from == 2 and resumed.history[2]["lr"] == pytest.approx(2.5e-4)
+
+
 def test_each_update_starts_from_the_policy_that_collected_its_batch(factory, tmp_path):
     """The normaliser is the actor's first layer: with normalizer_update 'after_update' a batch's statistics enter it
     after the batch's update, so every update starts from the collecting policy (kl_start ~ 0); the legacy

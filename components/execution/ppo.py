@@ -477,11 +477,28 @@ def _ppo_update(data: TensorDictBase, advantage: GAE, loss_module: ClipPPOLoss, 
         epochs_done += 1
         epoch_kl = policy_kl(loss_module.actor_network, data)
         epoch_clip = sum(clips) / max(len(clips), 1)
+        if train_actor and cfg.lr_schedule == "kl_adaptive":
+            adapt_lr(optimizer, epoch_kl, cfg)
         if train_actor and cfg.target_kl is not None and epoch_kl > cfg.target_kl:
             break
     out = {k: v / max(steps, 1) for k, v in sums.items()}
-    out.update(kl_approx=epoch_kl, clip_fraction=epoch_clip, epochs=epochs_done, actor_trained=train_actor)
+    out.update(kl_approx=epoch_kl, clip_fraction=epoch_clip, epochs=epochs_done, actor_trained=train_actor,
+               lr=optimizer.param_groups[0]["lr"])
     return out
+
+
+def adapt_lr(optimizer, kl: float, cfg: PPOConfig) -> float:
+    """One step of the KL-adaptive learning rate (``lr_schedule`` 'kl_adaptive', rl_games' AdaptiveScheduler):
+    lr / f when kl > 2 target_kl, lr x f when kl < target_kl / 2, else unchanged, clamped to [lr_min, lr_max]
+    (f = ``lr_adapt_factor``).  Sets every parameter group's rate and returns it."""
+    lr = optimizer.param_groups[0]["lr"]
+    if kl > 2.0 * cfg.target_kl:
+        lr = max(lr / cfg.lr_adapt_factor, cfg.lr_min)
+    elif kl < 0.5 * cfg.target_kl:
+        lr = min(lr * cfg.lr_adapt_factor, cfg.lr_max)
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+    return lr
 
 
 def episode_stats(data: TensorDictBase) -> dict:

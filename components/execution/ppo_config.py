@@ -113,6 +113,16 @@ class PPOConfig(Section):
         description="Stop a batch's remaining epochs once the mean approximate KL between the acting and the updated "
         "policy (policy_kl, the k3 estimator over the whole batch after each epoch) exceeds this; None: always all epochs.  "
         "The history records kl_approx, clip_fraction and the epochs done.")
+    lr_schedule: Literal["constant", "kl_adaptive"] = Field(
+        "constant",
+        description="'constant': Adam at ``lr`` throughout.  'kl_adaptive': the KL-adaptive schedule of rl_games (the "
+        "PPO of the Isaac Gym environments the paper trained in): after every epoch, the learning rate is divided by "
+        "``lr_adapt_factor`` when that epoch's policy_kl exceeds 2 x ``target_kl`` and multiplied by it when the KL is "
+        "below target_kl / 2, within [lr_min, lr_max].  Needs ``target_kl``.  The rate lives in the optimiser's state, "
+        "so a resumed run continues from the adapted rate; the history records it per iteration ('lr').")
+    lr_adapt_factor: float = Field(1.5, gt=1.0, description="Factor of one kl_adaptive step (rl_games: 1.5).")
+    lr_min: float = Field(1e-6, gt=0.0, description="Lowest learning rate of the kl_adaptive schedule (rl_games: 1e-6).")
+    lr_max: float = Field(1e-2, gt=0.0, description="Highest learning rate of the kl_adaptive schedule (rl_games: 1e-2).")
     checkpoint_every: int = Field(5, ge=1, description="Iterations between checkpoints (also written at the end).")
     validate_every: int = Field(
         10, ge=0,
@@ -130,6 +140,17 @@ class PPOConfig(Section):
                                  "per-entry start); set specialists.ppo.std_mode=independent or drop init_scale_by_block")
             if any(not v > 0 for v in self.init_scale_by_block.values()):
                 raise ValueError("init_scale_by_block: every scale must be positive")
+        return self
+
+    @model_validator(mode="after")
+    def _adaptive_lr_needs_a_target(self) -> "PPOConfig":
+        if self.lr_schedule == "kl_adaptive":
+            if self.target_kl is None:
+                raise ValueError("lr_schedule 'kl_adaptive' adapts the rate to target_kl; set specialists.ppo.target_kl "
+                                 "(e.g. 0.02) or use lr_schedule=constant")
+            if not self.lr_min <= self.lr <= self.lr_max:
+                raise ValueError(f"lr {self.lr} is outside [lr_min {self.lr_min}, lr_max {self.lr_max}] of the "
+                                 "kl_adaptive schedule; change lr or the bounds")
         return self
 
 
