@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -107,6 +108,30 @@ def row_report(line: Callable[[dict], str]) -> Callable[[dict], None]:
         for row in result["rows"]:
             print(line(row))
     return report
+
+
+class PoseProgress:
+    """Progress of a tool that lifts ``total`` poses one after the other: ``done()`` after each pose prints
+    ``label: k/total poses, elapsed Ns, ETA Ms`` on ``stream`` (stderr) for the first pose, then at most every
+    ``every_s`` seconds, and for the last one.  ``clock``: the time source (tests pass their own)."""
+
+    def __init__(self, label: str, total: int, every_s: float = 30.0, stream=None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.label, self.total, self.every_s, self.clock = label, int(total), float(every_s), clock
+        self.stream = sys.stderr if stream is None else stream
+        self.start = self.last = clock()
+        self.count = 0
+
+    def done(self) -> None:
+        self.count += 1
+        now = self.clock()
+        if self.count not in (1, self.total) and now - self.last < self.every_s:
+            return
+        self.last = now
+        elapsed = now - self.start
+        left = f", ETA {elapsed / self.count * (self.total - self.count):.0f}s" if self.count < self.total else ""
+        print(f"{self.label}: {self.count}/{self.total} poses, elapsed {elapsed:.0f}s{left}", file=self.stream,
+              flush=True)
 
 
 def check_positive(args: argparse.Namespace, *names: str) -> int | None:

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, finish_tool, resolve_source
+from benchmarks.grasp_tables import PoseProgress, add_source_args, finish_tool, resolve_source
 from benchmarks.scripted_lift import add_lift_args, check_lift_args, scripted_setup, select_grasps
 
 
@@ -86,6 +86,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
     height, seed = lift.eval_success_height_m, cfg.specialists.eval_seed
     objects, episodes = [], []
+    progress = PoseProgress("lift failures", int(frame.groupby("combination").head(max_poses).shape[0]))
     with tempfile.TemporaryDirectory() as tmp:
         urdf = hand.export_urdf(Path(tmp) / "hand")
         for combination, group in frame.groupby("combination", sort=True):
@@ -128,6 +129,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                                          "success": bool(rollout[-1]["next", "success"]),
                                          "objects_lifted": int((lifts > height).sum()), "n_objects": len(lifts),
                                          "steps": int(rollout.shape[0])})
+                    progress.done()
             finally:
                 env.close()
             print(f"lift failures: {combination} done", file=sys.stderr, flush=True)

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import add_source_args, check_positive, finish_tool, read_accepted, resolve_source, row_report
+from benchmarks.grasp_tables import (PoseProgress, add_source_args, check_positive, finish_tool, read_accepted,
+                                     resolve_source, row_report)
 from components.errors import MultigraspError
 
 
@@ -84,13 +85,18 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     hand, library, encoder, policy, lift = scripted_setup(cfg, controller)
     stage = cfg.specialists
     rows = []
+    progress = PoseProgress("scripted lift", int(frame.groupby("combination").head(max_poses).shape[0]))
+    def pose_done(pose: int, trial: int, rollout) -> None:
+        if trial == trials - 1:
+            progress.done()
     with tempfile.TemporaryDirectory() as tmp:
         urdf = hand.export_urdf(Path(tmp) / "hand")
         for combination, group in frame.groupby("combination", sort=True):
             records = records_from_table(group.iloc[:max_poses])
             env = LiftEnv(hand, library, urdf, records, lift, encoder, record_order="cycle")
             try:
-                result = evaluate_lift(env, policy, trials=trials, seed=cfg.specialists.eval_seed)
+                result = evaluate_lift(env, policy, trials=trials, seed=cfg.specialists.eval_seed,
+                                       on_rollout=pose_done)
             finally:
                 env.close()
             lifts = np.asarray(result.final_lifts)

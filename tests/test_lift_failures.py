@@ -88,7 +88,9 @@ def test_a_one_sided_touch_is_not_opposed_and_lifts_nothing(hand, tmp_path, caps
         assert record["pregrasp"]["links"] == 1 and record["pregrasp"]["opposition"] == -1.0
         assert record["after_closure"]["opposition"] == -1.0 and "normal_force_n" in record["after_closure"]
         assert record["closure_moved_mm"] < 5.0
-    assert "pregrasp_opposed" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "pregrasp_opposed" in captured.out
+    assert "lift failures: 1/2 poses" in captured.err and "lift failures: 2/2 poses" in captured.err
     assert s["by_contact_finger"] == {}  # the table has no contact_regions column
     # the straight lift has no closure: no physics before the first observation, no contact forces read
     assert main([*sphere_argv(path, tmp_path), "--trials", "1", "--max-poses", "1", "--controller", "straight",
@@ -104,3 +106,22 @@ def test_bad_options_are_one_line(tmp_path, capsys):
     assert err.startswith("error: --near-mm must be positive") and "\n" not in err
     assert main(["--trials", "0", "--json", str(tmp_path / "x.json")]) == 2
     assert capsys.readouterr().err.strip().startswith("error: --max-poses and --trials")
+
+
+def test_pose_progress_prints_the_first_pose_then_every_interval_and_the_last_with_an_eta():
+    """``PoseProgress`` (both lift tools): the first and the last pose always print; in between, a pose prints only
+    when ``every_s`` has passed since the last line; the ETA is the mean time per pose times the poses left."""
+    import io
+
+    from benchmarks.grasp_tables import PoseProgress
+
+    times = iter([0.0, 10.0, 20.0, 45.0, 50.0, 60.0])  # start, then after each of the 5 poses
+    stream = io.StringIO()
+    progress = PoseProgress("lift", 5, every_s=30.0, stream=stream, clock=lambda: next(times))
+    for _ in range(5):
+        progress.done()
+    assert stream.getvalue().splitlines() == [
+        "lift: 1/5 poses, elapsed 10s, ETA 40s",  # the first pose
+        "lift: 3/5 poses, elapsed 45s, ETA 30s",  # 35 s after the last line
+        "lift: 5/5 poses, elapsed 60s",  # the last pose, no ETA
+    ]

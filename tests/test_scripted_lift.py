@@ -45,7 +45,9 @@ def test_a_hand_that_does_not_hold_the_object_lifts_nothing(hand, tmp_path, caps
     assert row["combination"] == "sphere" and row["n_poses"] == 2 and row["trials"] == 2
     assert row["succ"] == 0.0 and result["succ_all"] == 0.0
     assert abs(row["median_final_lift_m"]) < 0.005 and abs(row["p90_final_lift_m"]) < 0.005
-    assert "sphere" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "sphere" in captured.out
+    assert "scripted lift: 1/2 poses" in captured.err and "scripted lift: 2/2 poses, elapsed" in captured.err
     assert result["controller"] == "straight" and result["force_fraction"] == 0.5
     assert result["closure_steps"] == 0  # the paper's w/o RL: from the pre-grasp itself, no grasp closure
     # the squeeze-and-lift closes a hand that holds nothing: still no success
