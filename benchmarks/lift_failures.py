@@ -29,6 +29,8 @@ Each object row also names the fingers of the grasp's *chosen* contacts on it (`
 energy's contacts, from the table's ``contact_regions``; ``palm`` for the palm's regions), and the summary's
 ``by_contact_finger`` gives, per finger, the lift rate of the objects whose chosen contacts use it and of those whose
 do not, and the success rate of the episodes where some object uses it and of the others (README "Palm contacts").
+The summary's ``by_q1_threshold`` gives, for each of ``--q1-thresholds``, the poses whose stored Q1 is at least it
+and their success rate: what a stricter ``synthesis.min_q1`` would keep, and how well that lifts.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +76,7 @@ def touching(world, body: int, radius: float, with_force: bool) -> dict:
 
 
 def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, controller: str, near_m: float,
-        opposed_above: float, n_objects: int | None = None) -> dict:
+        opposed_above: float, n_objects: int | None = None, q1_thresholds: Sequence[float] = ()) -> dict:
     """Every episode's per-object record and the summary (module docstring)."""
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -136,7 +139,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
     return {"grasps": str(grasps), "split": split, "n_objects": n_objects, "controller": controller,
             "closure_steps": lift.closure_steps,
             "near_mm": round(near_m * 1e3, 3), "opposed_above": opposed_above,
-            "summary": summarise(episodes, objects, opposed_above), "episodes": episodes, "objects": objects}
+            "summary": summarise(episodes, objects, opposed_above, q1_thresholds), "episodes": episodes, "objects": objects}
 
 
 def chosen_fingers(row, region_names: list) -> list[list[str]] | None:
@@ -169,13 +172,28 @@ def by_contact_finger(episodes: list[dict], objects: list[dict]) -> dict:
     return out
 
 
+def by_q1_threshold(episodes: list[dict], objects: list[dict], thresholds: Sequence[float]) -> list[dict]:
+    """For each threshold t: the poses whose grasp's stored Q1 is at least t, their episodes and success rate
+    (what ``synthesis.min_q1`` would keep, and how well it lifts).  Empty when the table has no Q1."""
+    q1 = {(o["combination"], o["pose"]): o["q1"] for o in objects if o.get("q1") is not None}
+    if not q1:
+        return []
+    rows = []
+    for t in thresholds:
+        kept = [e["success"] for e in episodes if q1.get((e["combination"], e["pose"]), -np.inf) >= t]
+        rows.append({"min_q1": float(t), "poses": sum(1 for v in q1.values() if v >= t), "episodes": len(kept),
+                     "success": _rate(kept)})
+    return rows
+
+
 def _rate(flags) -> float | None:
     return round(float(np.mean(flags)), 4) if len(flags) else None
 
 
-def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -> dict:
-    """Outcome counts, lift rates split by opposition at the pre-grasp, and what the closure did (module
-    docstring)."""
+def summarise(episodes: list[dict], objects: list[dict], opposed_above: float,
+              q1_thresholds: Sequence[float] = ()) -> dict:
+    """Outcome counts, lift rates split by opposition at the pre-grasp, what the closure did (module docstring),
+    and the success of the poses above each of ``q1_thresholds`` (:func:`by_q1_threshold`)."""
     lifted = [o["lifted"] for o in objects]
     opposed = [o["pregrasp"]["opposition"] > opposed_above for o in objects]
     kept = [o["after_closure"]["opposition"] > opposed_above for o in objects]
@@ -210,6 +228,7 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float) -
         "closure_moved_mm_median": (round(float(np.median([o["closure_moved_mm"] for o in objects])), 2)
                                     if objects else None),
         "by_contact_finger": by_contact_finger(episodes, objects),
+        "by_q1_threshold": by_q1_threshold(episodes, objects, q1_thresholds),
     }
 
 
@@ -219,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     add_lift_args(parser, max_poses=5, trials=2, controller="squeeze")
     parser.add_argument("--near-mm", type=float, default=5.0,
                         help="a hand link this close to an object (mm) touches it at the pre-grasp (default 5)")
+    parser.add_argument("--q1-thresholds", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.15, 0.2, 0.25],
+                        help="the summary's by_q1_threshold: success of the poses whose stored Q1 is at least each")
     parser.add_argument("--opposed-above", type=float, default=0.5,
                         help="an object is opposed when its contact normals' opposition exceeds this (default 0.5)")
     parser.add_argument("--json", type=Path, required=True, help="write the result here")
@@ -232,12 +253,16 @@ def main(argv: list[str] | None = None) -> int:
     def compute() -> dict:
         cfg, grasps = resolve_source(args)
         return run(grasps, cfg, None if args.split == "all" else args.split, args.max_poses, args.trials,
-                   args.controller, args.near_mm * 1e-3, args.opposed_above, args.n_objects)
+                   args.controller, args.near_mm * 1e-3, args.opposed_above, args.n_objects,
+                   args.q1_thresholds)
 
     def report(result: dict) -> None:
         for key, value in result["summary"].items():
-            if key != "by_contact_finger":
+            if key not in ("by_contact_finger", "by_q1_threshold"):
                 print(f"{key:32s} {value}")
+        for row in result["summary"].get("by_q1_threshold", []):
+            print(f"Q1 >= {row['min_q1']:<5g} {row['poses']:5d} poses, {row['episodes']:5d} episodes, "
+                  f"success {row['success']}")
         for finger, rates in result["summary"].get("by_contact_finger", {}).items():
             print(f"contact finger {finger:17s} {rates}")
 

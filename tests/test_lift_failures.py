@@ -8,7 +8,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from benchmarks.lift_failures import by_contact_finger, chosen_fingers, main, opposition, summarise
+from benchmarks.lift_failures import (by_contact_finger, by_q1_threshold, chosen_fingers, main, opposition,
+                                      summarise)
 from tests.test_scripted_lift import hand_above_sphere_table, sphere_argv
 
 
@@ -125,3 +126,15 @@ def test_pose_progress_prints_the_first_pose_then_every_interval_and_the_last_wi
         "lift: 3/5 poses, elapsed 45s, ETA 30s",  # 35 s after the last line
         "lift: 5/5 poses, elapsed 60s",  # the last pose, no ETA
     ]
+
+
+def test_by_q1_threshold_keeps_the_poses_at_or_above_each_threshold():
+    """Pose 0 (Q1 0.1) lifts in 1 of 2 trials, pose 1 (Q1 0.3) in 2 of 2: at 0 both poses count (3 of 4), at 0.1
+    still both, at 0.2 only pose 1 (2 of 2), at 0.5 none (no rate).  No stored Q1: no rows."""
+    episodes = [{"combination": "a+b", "pose": p, "trial": t, "success": s}
+                for p, t, s in ((0, 0, True), (0, 1, False), (1, 0, True), (1, 1, True))]
+    objects = [{"combination": "a+b", "pose": p, "trial": t, "q1": q} for p, q in ((0, 0.1), (1, 0.3)) for t in (0, 1)]
+    rows = by_q1_threshold(episodes, objects, [0.0, 0.1, 0.2, 0.5])
+    assert [(r["min_q1"], r["poses"], r["episodes"], r["success"]) for r in rows] == [
+        (0.0, 2, 4, 0.75), (0.1, 2, 4, 0.75), (0.2, 1, 2, 1.0), (0.5, 0, 0, None)]
+    assert by_q1_threshold(episodes, [dict(o, q1=None) for o in objects], [0.0]) == []
