@@ -49,6 +49,14 @@ class LiftEnvConfig(Section):
         "no friction, and lifts depend on it: the scripted squeeze-lift after the closure on the 100 bench Syn-Pl "
         "poses x 2 trials lifted 6.5 % at contact friction 0.8, 15 % at 1.0, 17 % at 1.2, 21.5 % at 1.6 "
         "(README 'Friction').")
+    hand_spinning_friction: float = Field(
+        0.0, ge=0.0,
+        description="Spinning (torsional) friction of every hand link (m): the torque a contact resists about its "
+        "normal per newton of normal force, the soft finger pad's contact patch that a point contact lacks.  Bullet "
+        "combines it as spin_hand x lateral_object + lateral_hand x spin_object, so against the library's objects "
+        "(lateral 0.8, objects.spinning_friction 1e-4) a value s gives 0.8 s + 1.25e-4.  0: Bullet's default "
+        "(no torsional friction), what every run before the fortieth session used.  The gymnasium-robotics "
+        "Shadow Hand scenes give their objects MuJoCo's condim 4, torsional friction 0.005 m (0.00625 here).")
 
     # ------------------------------------------------------------------ actions (paper table: 18 joint targets + 6-D base wrench)
     max_base_force_n: float = Field(

@@ -194,7 +194,8 @@ class LiftWorld:
         self._child_rows = np.flatnonzero(np.asarray(self.link_index) >= 0)  # rows of link_frames() they fill
         self._palm_rows = np.flatnonzero(np.asarray(self.link_index) < 0)
         for link in [-1, *self._child_links]:
-            pb.changeDynamics(self.body, link, lateralFriction=cfg.hand_lateral_friction, physicsClientId=c)
+            pb.changeDynamics(self.body, link, lateralFriction=cfg.hand_lateral_friction,
+                              spinningFriction=cfg.hand_spinning_friction, physicsClientId=c)
         pb.changeDynamics(self.body, -1, linearDamping=cfg.base_linear_damping, angularDamping=cfg.base_angular_damping,
                           physicsClientId=c)
         # fingertip joints: the joint whose child is each finger's distal link; sensors report their wrench
