@@ -9,7 +9,7 @@ import torch
 
 from components.execution import GraspRecord, LiftEnvConfig
 from components.execution.cameras import CameraConfig, preview_hand_pose
-from components.execution.closure import closest_points, closure_targets
+from components.execution.closure import closest_points, closure_targets, opposed_links
 from components.execution.lift_sim import LiftWorld
 from components.objects import Placement, Scene
 
@@ -75,8 +75,10 @@ def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand,
         p, R, q = preview_hand_pose(hand, cube, CameraConfig(), library)
         near = _lowered_onto_the_objects(world, GraspRecord(scene=cube, p=p, R=R, q=q.astype(np.float64)), 0.004)
         world.reset(near)
-        rows, points, directions = closest_points(world, cfg.closure_radius_m)
+        owners: list[int] = []
+        rows, points, directions = closest_points(world, cfg.closure_radius_m, owners)
         assert len(rows) >= 2 and np.allclose(np.linalg.norm(directions, axis=1), 1.0)
+        assert owners == [0] * len(rows)  # the cube, the only object
         assert np.all(directions[:, 2] < 0.0)  # from above the cube, into it: downwards
         assert world.close_grasp() == cfg.closure_steps + cfg.closure_settle_steps
         assert not np.allclose(world.targets, world.coupled(near.q))  # the targets moved into the cube
@@ -88,11 +90,35 @@ def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand,
         # pairs of the twenty-third session (before: < 5 mm; the solver order changes the small slip)
         assert np.abs(state.obj_pos[0] - np.array([0.0, 0.0, 0.02])).max() < 0.01
         assert world.last_action == [0.0] * 24
+        closed = world.targets.copy()
     finally:
         world.close()
+    # closure_links 'opposed': every link presses from above, no opposed pair, so the cube keeps all its links and
+    # the closure is the same
+    opposed = LiftWorld(hand, library, hand.export_urdf(tmp_path / "urdf3"), LiftEnvConfig(closure_links="opposed"))
+    try:
+        opposed.reset(near)
+        assert opposed.close_grasp() == cfg.closure_steps + cfg.closure_settle_steps
+        assert np.allclose(opposed.targets, closed)
+    finally:
+        opposed.close()
     off = LiftWorld(hand, library, hand.export_urdf(tmp_path / "urdf2"), LiftEnvConfig(closure_steps=0))
     try:  # closure off (the paper's start at the pre-grasp): nothing happens
         off.reset(near)
         assert off.close_grasp() == 0 and np.array_equal(off.targets, off.coupled(near.q))
     finally:
         off.close()
+
+
+def test_opposed_links_keep_the_pairs_of_each_object_and_every_link_of_an_object_without_one():
+    """Object 0: two links push along +x and -x (opposed) and one along +z (no partner: dropped).  Object 1: +y and
+    +z, 90 degrees apart (opposition 0, not above 0.5): no pair, so both are kept.  Object 2: two links 100 degrees
+    apart count as opposed at a threshold of -0.5 (opposition 0.17), not at 0.5."""
+    c, s = np.cos(np.radians(100)), np.sin(np.radians(100))
+    directions = np.array([[1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 1, 0], [0, 0, 1], [1, 0, 0], [c, s, 0]], dtype=float)
+    owners = [0, 0, 0, 1, 1, 2, 2]
+    keep = opposed_links(directions, owners, 0.5)
+    assert keep.tolist() == [True, True, False, True, True, True, True]
+    with_third = opposed_links(np.vstack([directions, [[-1.0, 0.0, 0.0]]]), owners + [2], 0.5)
+    assert with_third.tolist()[5:] == [True, False, True]  # object 2 now has a pair: the 100-degree link goes
+    assert opposed_links(directions, owners, -0.5).tolist() == [True, True, True, True, True, True, True]

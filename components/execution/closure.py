@@ -35,13 +35,15 @@ if TYPE_CHECKING:  # the world imports this module
     from components.execution.lift_sim import LiftWorld
 
 
-def closest_points(world: "LiftWorld", radius: float) -> tuple[list[int], np.ndarray, np.ndarray]:
+def closest_points(world: "LiftWorld", radius: float, owners: list[int] | None = None
+                   ) -> tuple[list[int], np.ndarray, np.ndarray]:
     """For every (hand link, object) pair closer than ``radius`` (m): the link's row in ``HandModel.link_names``,
-    the closest point on the link (world, (K, 3)) and the unit direction from it into the object (K, 3)."""
+    the closest point on the link (world, (K, 3)) and the unit direction from it into the object (K, 3).
+    ``owners``: when given, receives each pair's object index (into ``world.objects``)."""
     c = world.client
     row_of = {index: row for row, index in enumerate(world.link_index)}
     rows, points, directions = [], [], []
-    for body in world.objects:
+    for number, body in enumerate(world.objects):
         nearest: dict[int, tuple] = {}
         for cp in pb.getClosestPoints(world.body, body, radius, physicsClientId=c):
             link, distance = cp[3], cp[8]
@@ -51,7 +53,25 @@ def closest_points(world: "LiftWorld", radius: float) -> tuple[list[int], np.nda
             rows.append(row_of[link])
             points.append(cp[5])  # on the hand
             directions.append([-x for x in cp[7]])  # contactNormalOnB points from the object to the hand
+            if owners is not None:
+                owners.append(number)
     return rows, np.asarray(points, dtype=np.float64).reshape(-1, 3), np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+
+
+def opposed_links(directions: np.ndarray, owners: list[int], above: float) -> np.ndarray:
+    """Mask (K,) of the near links to press with ``lift.closure_links: opposed``: per object, the links whose push
+    direction has an opposing partner on the same object (-d_i . d_j > ``above``, the opposition of
+    ``benchmarks.lift_failures``).  A link without one pushes its object off the others; an object with no opposed
+    pair keeps all its links (there is no grip to protect)."""
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    owner = np.asarray(owners)
+    keep = np.ones(len(d), dtype=bool)
+    for obj in np.unique(owner):
+        mine = np.flatnonzero(owner == obj)
+        opposed = (-(d[mine] @ d[mine].T) > above).any(axis=1)
+        if opposed.any():
+            keep[mine] = opposed
+    return keep
 
 
 def closure_targets(hand: HandModel, p: np.ndarray, R: np.ndarray, q: np.ndarray, rows: list[int],

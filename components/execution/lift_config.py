@@ -103,6 +103,16 @@ class LiftEnvConfig(Section):
         "the position-controlled joints stop at the surface and press (0.01-0.03 gave the same lifts on 100 bench Syn-Pl poses).")
     closure_radius_m: float = Field(
         0.01, gt=0.0, description="Closure: hand links closer than this (m) to an object are pressed into it (0.005 and 0.01 measured alike).")
+    closure_links: Literal["all", "opposed"] = Field(
+        "all",
+        description="Closure: which near links press.  'all': every link within closure_radius_m.  'opposed' "
+        "(fortieth session): per object, only the links whose push direction has an opposing partner on the same "
+        "object (-d_i . d_j > closure_opposed_above); a one-sided link would push its object off the others.  An "
+        "object with no opposed pair keeps all its links.")
+    closure_opposed_above: float = Field(
+        0.5, ge=-1.0, le=1.0,
+        description="Closure, closure_links 'opposed': the opposition above which two push directions count as "
+        "opposed (0.5: more than 120 degrees apart, benchmarks.lift_failures' --opposed-above).")
     closure_damping: float = Field(
         1e-3, gt=0.0, description="Closure: lambda (rad^2 per m^2 of point motion) of the damped least squares (J^T J + lambda I) dq = J^T b.")
     closure_hold_stiffness_n_per_m: float = Field(

@@ -29,7 +29,7 @@ import pybullet as pb
 from scipy.spatial.transform import Rotation
 
 from components.execution.cameras import CameraConfig, add_table
-from components.execution.closure import closest_points, closure_targets
+from components.execution.closure import closest_points, closure_targets, opposed_links
 from components.execution.lift_config import LiftEnvConfig
 from components.hand import HandModel
 from components.objects import ObjectLibrary, Scene
@@ -272,7 +272,11 @@ class LiftWorld:
         cfg = self.cfg
         if cfg.closure_steps == 0:
             return 0
-        rows, points, directions = closest_points(self, cfg.closure_radius_m)
+        owners: list[int] = []
+        rows, points, directions = closest_points(self, cfg.closure_radius_m, owners)
+        if rows and cfg.closure_links == "opposed":
+            keep = opposed_links(directions, owners, cfg.closure_opposed_above)
+            rows, points, directions = [r for r, k in zip(rows, keep) if k], points[keep], directions[keep]
         if not rows:
             return 0
         p0, R0 = self.palm_pose()
