@@ -64,7 +64,7 @@ def _lowered_onto_the_objects(world, record, gap):
 
 
 def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand, library, open_hand, tmp_path):
-    cfg = LiftEnvConfig()
+    cfg = LiftEnvConfig(closure_links="all")
     world = LiftWorld(hand, library, hand.export_urdf(tmp_path / "urdf"), cfg)
     try:
         world.reset(open_hand)
@@ -93,8 +93,9 @@ def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand,
         closed = world.targets.copy()
     finally:
         world.close()
-    # closure_links 'opposed': every link presses from above, no opposed pair, so the cube keeps all its links and
-    # the closure is the same
+    # closure_links 'opposed' (the default): every link presses from above, no opposed pair, so the cube keeps all
+    # its links and the closure is the same
+    assert LiftEnvConfig().closure_links == "opposed"
     opposed = LiftWorld(hand, library, hand.export_urdf(tmp_path / "urdf3"), LiftEnvConfig(closure_links="opposed"))
     try:
         opposed.reset(near)

@@ -456,16 +456,17 @@ def test_joint_offset_mode_sets_targets_from_the_anchor_and_does_not_drift(hand,
 
 def test_hand_links_carry_the_configured_lateral_and_spinning_friction(hand, library, record, tmp_path):
     """``lift.hand_lateral_friction`` / ``hand_spinning_friction`` reach every hand link that can touch an object
-    (PyBullet's dynamics info: index 1 lateral, 7 spinning); the default spinning friction is Bullet's 0."""
+    (PyBullet's dynamics info: index 1 lateral, 7 spinning); the default spinning friction is 0.00625 (0.005 m at a
+    contact with a library object, MuJoCo's condim 4 default), and 0 gives Bullet's own (none)."""
     import pybullet as pb
 
     urdf = hand.export_urdf(tmp_path / "urdf")
-    for spin in (None, 0.00625):
+    for spin in (None, 0.0):
         cfg = LiftEnvConfig() if spin is None else LiftEnvConfig(hand_spinning_friction=spin)
         environment = LiftEnv(hand, library, urdf, [record], cfg, PointNetEncoder(PointNetConfig()).eval())
         world = environment.world
         for link in [-1, *world._child_links]:
             info = pb.getDynamicsInfo(world.body, link, physicsClientId=world.client)
             assert info[1] == pytest.approx(cfg.hand_lateral_friction)
-            assert info[7] == pytest.approx(0.0 if spin is None else spin)
+            assert info[7] == pytest.approx(0.00625 if spin is None else spin)
         environment.close()
