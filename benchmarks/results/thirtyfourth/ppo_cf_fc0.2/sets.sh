@@ -7,3 +7,9 @@ SETS=(--set "objects.train=[cube,frustum]" --set "objects.ood=[]" --set "objects
 X=(--set specialists.ppo.std_mode=independent --set specialists.ppo.reward_scale=0.1
    --set specialists.ppo.critic_warmup_iterations=10 --set specialists.ppo.target_kl=0.02
    --set specialists.ppo.normalizer_frozen_after=10)
+# The lift env of every run that sources this file (thirty-fourth to fortieth sessions): the grasp closure pressed
+# every near link and the finger pads had no torsional friction, the defaults until the forty-first session. A lift
+# probe of those sessions (benchmarks.lift_failures with "${SETS[@]}") needs "${OLD_LIFT[@]}" for its old baseline.
+# Options given after X (the fortieth session's) still win.
+OLD_LIFT=(--set lift.closure_links=all --set lift.hand_spinning_friction=0)
+X+=("${OLD_LIFT[@]}")
