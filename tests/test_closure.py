@@ -75,8 +75,7 @@ def test_closure_presses_the_near_links_into_the_object_with_the_palm_held(hand,
         p, R, q = preview_hand_pose(hand, cube, CameraConfig(), library)
         near = _lowered_onto_the_objects(world, GraspRecord(scene=cube, p=p, R=R, q=q.astype(np.float64)), 0.004)
         world.reset(near)
-        owners: list[int] = []
-        rows, points, directions = closest_points(world, cfg.closure_radius_m, owners)
+        rows, owners, points, directions = closest_points(world, cfg.closure_radius_m)
         assert len(rows) >= 2 and np.allclose(np.linalg.norm(directions, axis=1), 1.0)
         assert owners == [0] * len(rows)  # the cube, the only object
         assert np.all(directions[:, 2] < 0.0)  # from above the cube, into it: downwards

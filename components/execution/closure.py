@@ -35,14 +35,13 @@ if TYPE_CHECKING:  # the world imports this module
     from components.execution.lift_sim import LiftWorld
 
 
-def closest_points(world: "LiftWorld", radius: float, owners: list[int] | None = None
-                   ) -> tuple[list[int], np.ndarray, np.ndarray]:
+def closest_points(world: "LiftWorld", radius: float) -> tuple[list[int], list[int], np.ndarray, np.ndarray]:
     """For every (hand link, object) pair closer than ``radius`` (m): the link's row in ``HandModel.link_names``,
-    the closest point on the link (world, (K, 3)) and the unit direction from it into the object (K, 3).
-    ``owners``: when given, receives each pair's object index (into ``world.objects``)."""
+    the object's index in ``world.objects``, the closest point on the link (world, (K, 3)) and the unit direction
+    from it into the object (K, 3)."""
     c = world.client
     row_of = {index: row for row, index in enumerate(world.link_index)}
-    rows, points, directions = [], [], []
+    rows, owners, points, directions = [], [], [], []
     for number, body in enumerate(world.objects):
         nearest: dict[int, tuple] = {}
         for cp in pb.getClosestPoints(world.body, body, radius, physicsClientId=c):
@@ -53,9 +52,8 @@ def closest_points(world: "LiftWorld", radius: float, owners: list[int] | None =
             rows.append(row_of[link])
             points.append(cp[5])  # on the hand
             directions.append([-x for x in cp[7]])  # contactNormalOnB points from the object to the hand
-            if owners is not None:
-                owners.append(number)
-    return rows, np.asarray(points, dtype=np.float64).reshape(-1, 3), np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+            owners.append(number)
+    return rows, owners, np.asarray(points, dtype=np.float64).reshape(-1, 3), np.asarray(directions, dtype=np.float64).reshape(-1, 3)
 
 
 def opposed_links(directions: np.ndarray, owners: list[int], above: float) -> np.ndarray:

@@ -272,8 +272,7 @@ class LiftWorld:
         cfg = self.cfg
         if cfg.closure_steps == 0:
             return 0
-        owners: list[int] = []
-        rows, points, directions = closest_points(self, cfg.closure_radius_m, owners)
+        rows, owners, points, directions = closest_points(self, cfg.closure_radius_m)
         if rows and cfg.closure_links == "opposed":
             keep = opposed_links(directions, owners, cfg.closure_opposed_above)
             rows, points, directions = [r for r, k in zip(rows, keep) if k], points[keep], directions[keep]
