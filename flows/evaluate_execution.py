@@ -104,6 +104,7 @@ class SplitResult:
     used: tuple[str, ...] = ()
     gifs: tuple[Path, ...] = ()
     matched_by: dict[str, int] = field(default_factory=dict)  # poses per match_kind
+    outcomes: list[dict] = field(default_factory=list)  # one row per pose: successes of each controller (outcomes.json)
 
     @staticmethod
     def rate(wins: int, total: int) -> float | None:
@@ -181,6 +182,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
+        combinations = [record.meta.get("combination") or "+".join(record.scene.names) for record in group]
         if stage.eval_after_reach:
             group = reached_once(group, cfg, hand, library, Path(entry["folder"]) / "hand.urdf", reach_memo)
             out.reached += len(group)
@@ -215,11 +217,25 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                                      on_rollout=progress.on_rollout(label, "squeeze", len(group)))
                 out.squeeze_wins += sum(held.successes_per_pose)
                 out.squeeze_total += held.n_poses * held.trials
+            for i, key in enumerate(keys):
+                row = {"specialist": label, "combination": combinations[i], "pose_key": key,
+                       "policy": result.successes_per_pose[i]}
+                if scripted:
+                    row.update({"w/o RL": base.successes_per_pose[i], "squeeze": held.successes_per_pose[i]})
+                out.outcomes.append(row)
             progress.specialist_done(label, len(group), out, scripted)
         finally:
             env.close()
     out.gifs = tuple(gif_paths)
     return out
+
+
+def write_outcomes(path: Path, res: SplitResult, trials: int) -> Path:
+    """``outcomes.json`` of one setting: per evaluated pose its specialist, combination, seed key and the successes
+    (of ``trials``) of the policy and, on Syn-Pl, of ``w/o RL`` and the squeeze.  Two runs evaluated with the same
+    ``specialists.eval_*`` lift the same poses with the same perturbations, so ``python -m benchmarks.paired_execution
+    A B`` compares them pose by pose (a paired standard error, ~half the unpaired one here)."""
+    return atomic_write_json(path, {"trials": trials, "poses": res.outcomes})
 
 
 def without_closure(factory):
@@ -303,6 +319,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl", reach_memo=reach_memo,
                              say=say, title=setting)
         gifs += res.gifs
+        write_outcomes(scratch / setting / "outcomes.json", res, stage.eval_trials)
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                "trials": stage.eval_trials, "unmatched_poses": res.unmatched, "specialists_used": list(res.used),
                "matched_by": res.matched_by,
@@ -328,6 +345,8 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
         res = evaluate_split(variant, _stage_outputs(variant), "Pl", scratch / "ablations" / name.replace("/", "").replace(" ", "_"),
                              gifs=False, reach_memo=reach_memo, say=say, title=name)
+        write_outcomes(scratch / "ablations" / name.replace("/", "").replace(" ", "_") / "outcomes.json", res,
+                       stage.eval_trials)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
     specialists = outputs["specialists"]

@@ -138,6 +138,14 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     assert (ablation[2]["succ"] is None) == (ablation[1]["succ"] is None) and "not in the paper" in ablation[2]["note"]
     assert ablation[2]["n_poses"] == ablation[1]["n_poses"]
     assert all(r["succ"] is None and "--ablations" in r["missing"] for r in ablation[3:])
+    for setting, row in zip(("Syn-Pl", "Syn-Com", "Syn-Geo"), rows):  # per-pose outcomes, for paired comparisons
+        outcomes = json.loads((workdir / "results" / "execution" / setting / "outcomes.json").read_text())
+        assert outcomes["trials"] == 2 and len(outcomes["poses"]) == row["n_poses"]
+        if row["n_poses"]:
+            assert sum(p["policy"] for p in outcomes["poses"]) == round(row["succ"] * 2 * row["n_poses"])
+            assert all(set(p) >= {"specialist", "combination", "pose_key", "policy"} for p in outcomes["poses"])
+        if setting == "Syn-Pl" and row["n_poses"]:
+            assert sum(p["squeeze"] for p in outcomes["poses"]) == round(ablation[2]["succ"] * 2 * row["n_poses"])
     err = capsys.readouterr().err  # progress: one line per split, then counts per specialist
     assert "evaluate execution Syn-Pl:" in err and "evaluate execution Syn-Geo:" in err
     if rows[0]["n_poses"]:

@@ -185,6 +185,25 @@ class LiftEnvConfig(Section):
         "evaluated on.  False: training starts at the exact pre-grasps.  Not measured better (bench run F: "
         "Syn-Pl 13.2 % against 13.4 % without; README 'Friction, and best-policy selection').")
 
+    start_sampling: Literal["uniform", "learnability"] = Field(
+        "uniform",
+        description="Which pre-grasp a training episode starts from (components/execution/start_sampling.py).  "
+        "'uniform': every record alike.  'learnability': records whose training episodes sometimes lift and sometimes "
+        "drop are drawn more often (prioritized level replay): on a start that always lifts, or never does, every "
+        "return is alike and PPO's advantage is ~0.  Evaluation and validation pick their records themselves and "
+        "are not affected.")
+    learnability_prior: float = Field(
+        0.5, gt=0.0, description="start_sampling 'learnability': a of the Beta(a, a) prior on each record's success rate "
+        "(pseudo-episodes half lifted, half dropped; 0.5 is Jeffreys').")
+    learnability_power: float = Field(
+        2.0, ge=0.0,
+        description="start_sampling 'learnability': k in l = (4 p (1 - p))^k; larger focuses harder on the even "
+        "records (with 2, a record never lifted in 6 episodes is drawn 1/14 as often as an even one; 0 is uniform).")
+    learnability_uniform_mix: float = Field(
+        0.2, ge=0.0, le=1.0,
+        description="start_sampling 'learnability': share of the draws that stay uniform, so that no record is "
+        "dropped and a record's estimate can recover.")
+
     # ------------------------------------------------------------------ observation
     goal_observations: bool = Field(
         True,

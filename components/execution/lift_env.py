@@ -5,7 +5,8 @@
     rollout = env.rollout(150, policy)
 
 An episode starts from the pre-grasp of one :class:`GraspRecord` (hand and objects as the record puts
-them, at rest; drawn at random or in turn, ``record_order``), closed on the objects by the grasp closure
+them, at rest; drawn at random -- uniformly or by learnability, ``LiftEnvConfig.start_sampling`` -- or in
+turn, ``record_order``), closed on the objects by the grasp closure
 (:mod:`components.execution.closure`, ``closure_steps`` > 0; the goals, start heights and step count start
 after it), then each step applies a 24-D action in
 [-1, 1] (:mod:`components.execution.lift_sim`) for ``substeps`` physics steps, held for ``action_repeat``
@@ -40,6 +41,7 @@ from components.execution.clouds import CloudFeaturizer, Encoder
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_sim import N_JOINT_ACTIONS, N_WRENCH, GraspRecord, LiftWorld, WorldState
 from components.execution.observations import Goal, ObservationBuilder, observation_dim, reward_terms, worst_step_reward
+from components.execution.start_sampling import LearnabilitySampler
 from components.hand import HandModel
 from components.objects import ObjectLibrary
 
@@ -82,6 +84,11 @@ class LiftEnv(EnvBase):
         self.featurizer = CloudFeaturizer(hand, library, cfg, encoder)
         self._rng = np.random.default_rng(seed)
         self._next = 0
+        self.sampler = None  # LiftEnvConfig.start_sampling 'learnability': outcome counts per record
+        if cfg.start_sampling == "learnability":
+            self.sampler = LearnabilitySampler(len(self.records), cfg.learnability_prior, cfg.learnability_power,
+                                               cfg.learnability_uniform_mix)
+        self._current: Optional[int] = None  # record index of a drawn (training) episode; None when forced
         dim = observation_dim(cfg, self.n_objects)
         self._joint_ranges = (self.world.upper - self.world.lower).tolist()  # rad, for worst_step_reward
         self._observations = ObservationBuilder(cfg, self.n_objects)
@@ -99,12 +106,16 @@ class LiftEnv(EnvBase):
         self._forced: Optional[tuple[int, Optional[int]]] = None  # (record, trial seed) of the next reset
 
     # ------------------------------------------------------------------ records
-    def _pick_record(self) -> GraspRecord:
+    def _pick_record(self) -> int:
+        """Index of the next training episode's record: in turn (``record_order`` 'cycle'), else drawn per
+        ``cfg.start_sampling``."""
         if self.record_order == "cycle":
-            record = self.records[self._next % len(self.records)]
+            index = self._next % len(self.records)
             self._next += 1
-            return record
-        return self.records[int(self._rng.integers(len(self.records)))]
+            return index
+        if self.sampler is not None:
+            return self.sampler.draw(self._rng)
+        return int(self._rng.integers(len(self.records)))
 
     def set_next_record(self, index: int, trial_seed: Optional[int] = None) -> None:
         """Make the next reset start from record ``index`` (evaluation), whatever ``record_order``; with
@@ -133,11 +144,13 @@ class LiftEnv(EnvBase):
     def _reset(self, tensordict: Optional[TensorDictBase] = None, **kwargs) -> TensorDictBase:
         forced, self._forced = self._forced, None
         if forced is None:
-            record = self._pick_record()
+            self._current = self._pick_record()
+            record = self.records[self._current]
             if self.cfg.train_perturbation:  # a training start drawn as an evaluation trial is (LiftEnvConfig)
                 record = self.world.perturbed(record, self._rng, self.cfg.trial_position_noise_m,
                                               self.cfg.trial_joint_noise_rad)
         else:
+            self._current = None
             record = self.records[forced[0]]
             if forced[1] is not None:
                 record = self.world.perturbed(record, np.random.default_rng(forced[1]), self.cfg.trial_position_noise_m,
@@ -178,6 +191,8 @@ class LiftEnv(EnvBase):
             if terminated or truncated:
                 break
         ep.last_action = self.world.last_action  # the action as applied, clipped to [-1, 1]
+        if (terminated or truncated) and self.sampler is not None and self._current is not None:
+            self.sampler.update(self._current, terms["lift"] > self.cfg.eval_success_height_m)
         if ep.t // period != t0 // period:  # an inner step reached a feature update (every feature_period steps)
             self._update_features(state)
         out = self._output(state, terms["lift"], reward, terminated, truncated)
