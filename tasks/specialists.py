@@ -249,10 +249,27 @@ def longest_finished_bin(spec: UnitSpec, training: str, iterations: int) -> tupl
     return best
 
 
+def write_start_counts(path: Path, counts) -> tuple[Path, dict]:
+    """``start_counts.json``: the training episodes and successes of every record of the bin (``lift.start_sampling``
+    'learnability', counted by all workers since this run's start), and metrics: records never tried, tried and never
+    lifted, always lifted, and mixed (the ones learnability sampling favours), with the share of episodes each got."""
+    rows = np.asarray(counts).tolist()
+    episodes = sum(e for e, _ in rows) or 1
+    kinds = {"untried": [r for r in rows if r[0] == 0], "never_lifted": [r for r in rows if r[0] and r[1] == 0],
+             "always_lifted": [r for r in rows if r[0] and r[1] == r[0]],
+             "mixed": [r for r in rows if 0 < r[1] < r[0]]}
+    metrics = {}
+    for kind, members in kinds.items():
+        metrics[f"start_records_{kind}"] = len(members)
+        metrics[f"start_episode_share_{kind}"] = round(sum(e for e, _ in members) / episodes, 4)
+    path = atomic_write_json(path, {"columns": ["episodes", "successes"], "records": rows, "summary": metrics})
+    return path, metrics
+
+
 def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: SpecialistsStageConfig,
               lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg, encoder: Path, cache: Path,
               spec: UnitSpec) -> UnitOutput:
-    from components.execution.factory import LiftEnvFactory
+    from components.execution.factory import LiftEnvFactory, open_start_counts
     from components.execution.ppo import train_ppo
     from components.execution.records import record_from_dict, save_records
     from components.hand import HandModel
@@ -268,9 +285,13 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
     records_path = save_records(folder / "records.json", [record_from_dict(r) for r in records])
     hand = HandModel(hand_cfg)
     urdf = hand.export_urdf(folder / "hand.urdf")
+    start_counts = None  # lift.start_sampling 'learnability': (episodes, successes) per record, shared by the workers
+    if lift.start_sampling == "learnability":  # kept in the unit folder: a resumed training keeps its counts
+        start_counts = open_start_counts(folder / "start_counts.i64", len(records))
     factory = LiftEnvFactory(hand_cfg=hand_cfg.model_dump(mode="json"), objects_cfg=objects.model_dump(mode="json"),
                              objects_cache=str(cache), urdf=str(urdf), records=str(records_path),
-                             lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed)
+                             lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed,
+                             start_counts=None if start_counts is None else str(folder / "start_counts.i64"))
 
     def progress(iteration: int, total: int, info: dict) -> None:
         if "reward" not in info:  # the validation of the untrained actor
@@ -280,8 +301,12 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
             return
         success = f" success {info['success']:.2f}" if "success" in info else ""
         validated = f" validation {info['val_success']:.2f}" if "val_success" in info else ""
+        starts = ""
+        if start_counts is not None:  # learnability sampling: how many records have shown both outcomes so far
+            mixed = (start_counts[:, 1] > 0) & (start_counts[:, 1] < start_counts[:, 0])
+            starts = f" mixed starts {int(mixed.sum())}/{len(start_counts)}"
         print(f"specialists {unit} ({label}) iteration {iteration}/{total} reward {info['reward']:.3f}{success}"
-              f"{validated} ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
+              f"{validated}{starts} ETA {info['eta_s']:.0f}s", file=sys.stderr, flush=True)
 
     init = initial_action(stage, hand.actuated_joint_names)
     validation = BinValidation(factory, len(records), stage)
@@ -298,13 +323,16 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
                "final_reward": round(float(last.get("reward", 0.0)), 6)}
     if "success" in last:
         metrics["final_success"] = round(float(last["success"]), 6)
+    files = {"policy": folder / "policy.pt", "records": records_path, "history": history,
+             "validations": validations, "learning_curve": curve, "urdf": urdf}
+    if start_counts is not None:
+        files["start_counts"], counted = write_start_counts(folder / "start_counts.json", start_counts)
+        metrics.update(counted)
     if result.best is not None:
         metrics.update(best_iteration=int(result.best["iteration"]),
                        best_validation_success=round(float(result.best["success"]), 6),
                        start_validation_success=round(float(result.validations[0]["success"]), 6))
-    return UnitOutput(files={"policy": folder / "policy.pt", "records": records_path, "history": history,
-                             "validations": validations, "learning_curve": curve, "urdf": urdf},
-                      metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from,
+    return UnitOutput(files=files, metrics=metrics, meta={"bin": label, "resumed_from": result.resumed_from,
                                              "extended_from": extended_from, "training": training})
 
 

@@ -418,3 +418,23 @@ def test_frozen_normaliser_statistics_stop_after_the_given_iterations(factory, t
     assert all(row["kl_start"] < 1e-5 for row in rows[1:])
     state = load_checkpoint(tmp_path / "frozen.pt")
     assert float(state["actor"]["module.0.module.0.count"]) == 100.0  # only the first batch
+
+
+def test_learnability_counts_are_shared_by_the_collector_workers(factory, tmp_path):
+    """Two MultiSyncCollector workers count their training episodes into one memory-mapped file that the main
+    process reads: as many episodes as the batches ended, all on the bin's one record."""
+    from dataclasses import replace
+
+    from components.execution.factory import open_start_counts
+
+    path = tmp_path / "start_counts.i64"
+    counts = open_start_counts(path, 1)
+    shared = replace(factory, lift_cfg={"max_steps": 10, "closure_steps": 0, "start_sampling": "learnability"},
+                     start_counts=str(path))
+    result = train_ppo(shared, PPOConfig(iterations=2, workers=2, **TINY_PPO), tmp_path / "ppo.pt")
+    ended = sum(row["episodes"] for row in result.history)
+    assert ended >= 10  # 2 x 100 frames of 10-step episodes
+    assert ended <= int(counts[0, 0]) <= ended + 2  # + episodes a worker ended after its last batch was cut
+    assert int(counts[0, 1]) == 0  # an open hand above the objects lifts nothing in 10 steps
+    assert open_start_counts(path, 1)[0, 0] == counts[0, 0]  # reopened with the right size: kept, not zeroed
+    assert open_start_counts(path, 3).sum() == 0  # another record count: a fresh file

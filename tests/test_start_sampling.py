@@ -96,3 +96,26 @@ def test_the_env_counts_its_training_episodes_per_record_and_not_forced_ones(han
         assert uniform.sampler is None
     finally:
         uniform.close()
+
+
+def test_the_sampler_counts_into_a_given_array_and_refuses_a_wrong_one():
+    counts = np.zeros((2, 2), dtype=np.int64)
+    sampler = LearnabilitySampler(2, prior=0.5, power=2.0, uniform_mix=0.2, counts=counts)
+    sampler.update(1, True)
+    sampler.update(1, False)
+    assert counts.tolist() == [[0, 0], [2, 1]]
+    with pytest.raises(ValueError, match="expected"):
+        LearnabilitySampler(3, prior=0.5, power=2.0, uniform_mix=0.2, counts=counts)
+
+
+def test_start_counts_summary_sorts_records_by_outcome(tmp_path):
+    import json
+
+    from tasks.specialists import write_start_counts
+
+    counts = np.array([[0, 0], [4, 0], [3, 3], [5, 2], [8, 1]], dtype=np.int64)
+    path, metrics = write_start_counts(tmp_path / "start_counts.json", counts)
+    assert (metrics["start_records_untried"], metrics["start_records_never_lifted"],
+            metrics["start_records_always_lifted"], metrics["start_records_mixed"]) == (1, 1, 1, 2)
+    assert metrics["start_episode_share_mixed"] == pytest.approx(13 / 20, abs=1e-4)
+    assert json.loads(path.read_text())["records"][3] == [5, 2]

@@ -15,11 +15,15 @@ Per record i the env counts its finished training episodes n_i and successes s_i
     P(i) = (1 - m) l_i / sum_j l_j + m / N    (a share m of the draws stays uniform, so no record is dropped)
 
 with a = ``learnability_prior``, k = ``learnability_power`` and m = ``learnability_uniform_mix``.  The counts are
-the sampling policy's own outcomes (exploration included) since the start of training; each env (collector worker)
-keeps its own, and a resumed run starts them afresh.
+the sampling policy's own outcomes (exploration included).  Given a shared (N, 2) count array (the memory map of
+one file, ``LiftEnvFactory.start_counts``), the envs of every collector worker count into and draw from the same
+evidence (an increment lost to a race between two workers costs one episode's count), and a training resumed
+after a crash keeps them; otherwise each env keeps its own.
 """
 
 from __future__ import annotations
+
+from typing import Optional
 
 import numpy as np
 
@@ -28,15 +32,23 @@ class LearnabilitySampler:
     """Counts of finished episodes and successes per record, and draws a record index by learnability (module
     docstring).  Plain numpy; one per env."""
 
-    def __init__(self, n_records: int, prior: float, power: float, uniform_mix: float):
+    def __init__(self, n_records: int, prior: float, power: float, uniform_mix: float,
+                 counts: Optional[np.ndarray] = None):
+        """``counts``: an (n_records, 2) int64 array of (episodes, successes) per record to count into, e.g. a
+        memory map shared by several processes; a fresh one when None."""
         if n_records < 1:
             raise ValueError("LearnabilitySampler needs at least one record")
         if prior <= 0.0 or power < 0.0 or not 0.0 <= uniform_mix <= 1.0:
             raise ValueError(f"LearnabilitySampler: prior {prior} must be > 0, power {power} >= 0 and "
                              f"uniform_mix {uniform_mix} in [0, 1]")
+        if counts is None:
+            counts = np.zeros((n_records, 2), dtype=np.int64)
+        if counts.shape != (n_records, 2) or counts.dtype != np.int64:
+            raise ValueError(f"LearnabilitySampler: counts of shape {counts.shape} and dtype {counts.dtype}, "
+                             f"expected ({n_records}, 2) int64")
         self.prior, self.power, self.uniform_mix = float(prior), float(power), float(uniform_mix)
-        self.episodes = np.zeros(n_records, dtype=np.int64)
-        self.successes = np.zeros(n_records, dtype=np.int64)
+        self.counts = counts
+        self.episodes, self.successes = counts[:, 0], counts[:, 1]  # views: updates write into counts
 
     def success_estimates(self) -> np.ndarray:
         """(N,) posterior mean success rate of every record."""
