@@ -4,7 +4,8 @@
 
 DIR is a specialists stage folder (``<workdir>/stages/specialists/<key>``: its ``index.json`` names the bin
 folders, each with ``history.json`` and ``validations.json``) or a folder of copied files named
-``<bin>.history.json`` / ``<bin>.validations.json`` (as under ``benchmarks/results/*/specialists/``).  One panel
+``<bin>.history.json`` / ``<bin>.validations.json`` (as under ``benchmarks/results/*/specialists/``), or one bin's
+``history.json`` / ``validations.json`` (the folder names the bin).  One panel
 per bin: the sampled episodes' success (a running mean over ``--smooth`` iterations) and the deterministic
 validation, against frames.  The JSON gives per bin the validation at the start, its best and its last, and the
 least-squares slope of the sampled success per iteration with its correlation.
@@ -33,6 +34,10 @@ def find_bins(folder: Path) -> dict[str, tuple[list[dict], list[dict]]]:
             out[label] = (json.loads((unit / "history.json").read_text()),
                           json.loads(validations.read_text())["rows"] if validations.is_file() else [])
         return out
+    if (folder / "history.json").is_file():  # one bin's files, copied without a prefix: the folder names the bin
+        validations = folder / "validations.json"
+        return {folder.name: (json.loads((folder / "history.json").read_text()),
+                              json.loads(validations.read_text())["rows"] if validations.is_file() else [])}
     for path in sorted(folder.glob("*.history.json")):
         label = path.name[: -len(".history.json")]
         validations = folder / f"{label}.validations.json"
@@ -58,7 +63,7 @@ def summarise(history: list[dict], validations: list[dict]) -> dict:
                        slope_points_per_iteration=round(float(slope), 4),
                        correlation=round(float(np.corrcoef(x, y)[0, 1]), 3) if y.std() > 0 else 0.0)
     if validations:
-        best = max(validations, key=lambda v: (v["success"], -v["iteration"]))
+        best = max(validations, key=lambda v: (v["success"], v.get("lift", 0.0)))  # the stage's rule: ties by lift
         summary.update(validation_start=round(100.0 * validations[0]["success"], 2),
                        validation_best=round(100.0 * best["success"], 2), best_iteration=int(best["iteration"]),
                        validation_last=round(100.0 * validations[-1]["success"], 2))
@@ -109,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         bins = {}
         for folder in args.folders:
             found = find_bins(folder)
-            bins.update({(f"{folder.name}: {k}" if len(args.folders) > 1 else k): v for k, v in found.items()})
+            bins.update({(f"{folder.name}: {k}" if len(args.folders) > 1 and k != folder.name else k): v
+                         for k, v in found.items()})
         plot(bins, args.out, args.smooth, args.title)
     except (MultigraspError, OSError, ValueError, KeyError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -33,11 +33,15 @@ def test_both_layouts_give_a_figure_and_a_summary(tmp_path):
     unit.mkdir(parents=True)
     (unit / "history.json").write_text(json.dumps(_history([0.5, 0.4, 0.45])))
     (stage / "index.json").write_text(json.dumps({"b/1": {"folder": str(unit)}}))
+    single = tmp_path / "single"
+    single.mkdir()
+    (single / "history.json").write_text(json.dumps(_history([0.1, 0.2, 0.3])))
     out, summary = tmp_path / "curves.png", tmp_path / "summary.json"
-    assert main([str(copied), str(stage), "--out", str(out), "--json", str(summary)]) == 0
+    assert main([str(copied), str(stage), str(single), "--out", str(out), "--json", str(summary)]) == 0
     assert out.stat().st_size > 1000
     data = json.loads(summary.read_text())
-    assert set(data) == {"copied: a_0", "stage: b/1"}
+    assert set(data) == {"copied: a_0", "stage: b/1", "single"}
+    assert data["single"]["slope_points_per_iteration"] == pytest.approx(10.0)
     assert data["copied: a_0"]["validation_start"] == 20.0 and "validation_start" not in data["stage: b/1"]
 
 
