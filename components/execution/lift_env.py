@@ -90,8 +90,7 @@ class LiftEnv(EnvBase):
         self.sampler = None  # LiftEnvConfig.start_sampling 'learnability': outcome counts per record
         if cfg.start_sampling == "learnability":
             self.sampler = LearnabilitySampler(len(self.records), cfg.learnability_prior, cfg.learnability_power,
-                                               cfg.learnability_uniform_mix,
-                                               start_counts)
+                                               cfg.learnability_uniform_mix, start_counts)
         self._current: Optional[int] = None  # record index of a drawn (training) episode; None when forced
         dim = observation_dim(cfg, self.n_objects)
         self._joint_ranges = (self.world.upper - self.world.lower).tolist()  # rad, for worst_step_reward
