@@ -269,6 +269,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         report = evaluate_execution(cfg, ablations=args.ablations)
         print(report.markdown)
         print(f"written: {report.json_path}  {report.ablation_path}")
+        print(f"per-pose outcomes: {report.json_path.parent / 'execution'}/<setting>/outcomes.json — compare two runs "
+              "pose by pose with python -m benchmarks.paired_execution A B")
         return 0
     if args.source is None:
         raise MultigraspError("evaluate pregrasp needs --source (synthetic) — e.g. multigrasp evaluate pregrasp --source synthetic")

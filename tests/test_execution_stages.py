@@ -146,7 +146,9 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
             assert all(set(p) >= {"specialist", "combination", "pose_key", "policy"} for p in outcomes["poses"])
         if setting == "Syn-Pl" and row["n_poses"]:
             assert sum(p["squeeze"] for p in outcomes["poses"]) == round(ablation[2]["succ"] * 2 * row["n_poses"])
-    err = capsys.readouterr().err  # progress: one line per split, then counts per specialist
+    captured = capsys.readouterr()
+    assert "per-pose outcomes:" in captured.out and "benchmarks.paired_execution" in captured.out
+    err = captured.err  # progress: one line per split, then counts per specialist
     assert "evaluate execution Syn-Pl:" in err and "evaluate execution Syn-Geo:" in err
     if rows[0]["n_poses"]:
         assert "lifted " in err and "w/o RL " in err
