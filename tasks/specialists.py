@@ -251,7 +251,7 @@ def longest_finished_bin(spec: UnitSpec, training: str, iterations: int) -> tupl
 
 def write_start_counts(path: Path, counts) -> tuple[Path, dict]:
     """``start_counts.json``: the training episodes and successes of every record of the bin (``lift.start_sampling``
-    'learnability', counted by all workers since this run's start), and metrics: records never tried, tried and never
+    'learnability', counted by all workers since the bin's training began; a resume keeps them), and metrics: records never tried, tried and never
     lifted, always lifted, and mixed (the ones learnability sampling favours), with the share of episodes each got."""
     rows = np.asarray(counts).tolist()
     episodes = sum(e for e, _ in rows) or 1
@@ -285,13 +285,13 @@ def train_bin(folder: Path, label: str, records: list[dict[str, Any]], stage: Sp
     records_path = save_records(folder / "records.json", [record_from_dict(r) for r in records])
     hand = HandModel(hand_cfg)
     urdf = hand.export_urdf(folder / "hand.urdf")
-    start_counts = None  # lift.start_sampling 'learnability': (episodes, successes) per record, shared by the workers
-    if lift.start_sampling == "learnability":  # kept in the unit folder: a resumed training keeps its counts
-        start_counts = open_start_counts(folder / "start_counts.i64", len(records))
+    counts_path = folder / "start_counts.i64" if lift.start_sampling == "learnability" else None
+    # (episodes, successes) per record, shared by the workers; kept in the unit folder, so a resume keeps them
+    start_counts = None if counts_path is None else open_start_counts(counts_path, len(records))
     factory = LiftEnvFactory(hand_cfg=hand_cfg.model_dump(mode="json"), objects_cfg=objects.model_dump(mode="json"),
                              objects_cache=str(cache), urdf=str(urdf), records=str(records_path),
                              lift_cfg=lift.model_dump(mode="json"), encoder=str(encoder), seed=stage.ppo.seed,
-                             start_counts=None if start_counts is None else str(folder / "start_counts.i64"))
+                             start_counts=None if counts_path is None else str(counts_path))
 
     def progress(iteration: int, total: int, info: dict) -> None:
         if "reward" not in info:  # the validation of the untrained actor

@@ -103,6 +103,21 @@ def test_fewer_bins_reuse_the_trained_specialists(runs):
     assert len(index) == 1
 
 
+def test_learnability_starts_write_their_counts_and_metrics_per_bin(runs):
+    """lift.start_sampling=learnability: the bin trains anew (the lift config is part of its key) and its unit keeps
+    the shared counts file, start_counts.json and the never / always / mixed metrics, which add up to its records."""
+    workdir, _, _ = runs
+    assert main(_rerun_argv(workdir, "specialists.max_bins=1", "lift.start_sampling=learnability")) == 0
+    index = json.loads(_final(workdir, "specialists").path("index").read_text())
+    (entry,) = index.values()
+    counts = json.loads((Path(entry["folder"]) / "start_counts.json").read_text())
+    assert (Path(entry["folder"]) / "start_counts.i64").stat().st_size == 16 * entry["metrics"]["records"]
+    assert len(counts["records"]) == entry["metrics"]["records"] and sum(e for e, _ in counts["records"]) >= 1
+    kinds = ("untried", "never_lifted", "always_lifted", "mixed")
+    assert sum(entry["metrics"][f"start_records_{k}"] for k in kinds) == entry["metrics"]["records"]
+    assert sum(entry["metrics"][f"start_episode_share_{k}"] for k in kinds) == pytest.approx(1.0, abs=1e-3)
+
+
 def test_mlflow_has_the_learning_curves(runs):
     import mlflow
 
