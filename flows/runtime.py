@@ -25,6 +25,7 @@ from tasks.units import UnitSpec, make_spec, records_dir
 log = logging.getLogger("multigrasp")
 
 SERVER_START_TIMEOUT_S = 90.0
+PREFECT_DRAIN_TIMEOUT_S = 30.0  # at most this long to send queued run logs and events before the server stops
 
 
 def prefect_defaults() -> None:
@@ -84,7 +85,6 @@ def local_prefect_server(workdir: Path) -> Iterator[str]:
                 time.sleep(0.5)
         yield url
     finally:
-        _flush_prefect_logs()
         proc.terminate()
         try:
             proc.wait(timeout=15)
@@ -93,14 +93,27 @@ def local_prefect_server(workdir: Path) -> Iterator[str]:
         logfile.close()
 
 
-def _flush_prefect_logs() -> None:
-    """Send Prefect's queued run logs to the API before the server it talks to goes away."""
+def _drain_prefect_workers() -> None:
+    """Send Prefect's queued run logs and events to this run's server before it goes away.  Left to Prefect's own
+    exit handlers, they are sent after the server has stopped, and Prefect starts a temporary server just for
+    them (a few seconds, "Still processing items" warnings after the CLI's summary)."""
     try:
+        from prefect.events.worker import EventsWorker
         from prefect.logging.handlers import APILogHandler
 
         APILogHandler.flush()
-    except Exception as exc:  # noqa: BLE001 - logs are best effort; never fail a finished run
-        log.debug("could not flush Prefect logs: %s", exc)
+        EventsWorker.drain_all(timeout=PREFECT_DRAIN_TIMEOUT_S)
+    except Exception as exc:  # noqa: BLE001 - logs and events are best effort; never fail a finished run
+        log.debug("could not drain Prefect's log and event workers: %s", exc)
+
+
+def _refresh_prefect_global_settings() -> None:
+    """Make threads that carry no settings context of their own (Prefect's process-pool message forwarder and its
+    global event-loop thread) read the current environment: they fall back to the global settings Prefect built at
+    import, which lack this run's ``PREFECT_API_URL``, and each started a temporary server of its own."""
+    from prefect.context import refresh_global_settings_context
+
+    refresh_global_settings_context()
 
 
 class HideUserErrorTracebacks(logging.Filter):
@@ -147,9 +160,13 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
             # them at interpreter exit, after the server is gone, and start a temporary server
             # just for that (~1 min on 2 cores). Progress is printed and tracked in MLflow.
             updates[PREFECT_LOGGING_TO_API_ENABLED] = False
+            stack.callback(_refresh_prefect_global_settings)  # unwound after the environment is restored
             stack.enter_context(_environ({"PREFECT_API_URL": url, "PREFECT_LOCAL_STORAGE_PATH": str(records),
                                           "PREFECT_LOGGING_TO_API_ENABLED": "false"}))
+            _refresh_prefect_global_settings()
         stack.enter_context(temporary_settings(updates=updates))
+        if cfg.run.runner == "processes" and PREFECT_API_URL in updates:
+            stack.callback(_drain_prefect_workers)  # unwound first, while the server and its settings are in place
         yield
 
 

@@ -244,6 +244,28 @@ def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_r
     assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
 
 
+def test_process_runner_uses_only_the_runs_prefect_server_and_resumes_from_cache(tmp_path):
+    """`--runner processes`: every Prefect client of the run talks to the one local server the run starts.  Prefect's
+    process-pool message forwarder and its event-loop thread used to start a temporary server each (they read the
+    settings Prefect built at import), and the queued events were sent after the run's server had stopped.  With
+    temporary servers forbidden (PREFECT_SERVER_ALLOW_EPHEMERAL_MODE=false) any such attempt logs an ERROR."""
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir", str(tmp_path), "--until",
+            "scenes", "--runner", "processes"] + [a for item in SMALL for a in ("--set", item)]
+    env = {**os.environ, "PREFECT_SERVER_ALLOW_EPHEMERAL_MODE": "false"}
+    env.pop("PREFECT_API_URL", None)
+    outputs = [subprocess.run(argv, capture_output=True, text=True, timeout=300, env=env) for _ in range(2)]
+    for done in outputs:
+        out = done.stdout + done.stderr
+        assert done.returncode == 0, out
+        for bad in ("Traceback", "ERROR", "failed", "Still processing items", "temporary server"):
+            assert bad not in out, out
+    assert "0 served from cache" in outputs[0].stderr and "every stage served from cache" in outputs[1].stderr
+    assert (tmp_path / "prefect-server.log").is_file()  # the run's own server
+
+
 @pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
 def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
     """`kill PID` (or a cluster scheduler's SIGTERM) was swallowed inside a flow, or ended the CLI at once and left
