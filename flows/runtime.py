@@ -165,7 +165,7 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
                                           "PREFECT_LOGGING_TO_API_ENABLED": "false"}))
             _refresh_prefect_global_settings()
         stack.enter_context(temporary_settings(updates=updates))
-        if cfg.run.runner == "processes" and PREFECT_API_URL in updates:
+        if PREFECT_API_URL in updates:  # this run started its own server
             stack.callback(_drain_prefect_workers)  # unwound first, while the server and its settings are in place
         yield
 
