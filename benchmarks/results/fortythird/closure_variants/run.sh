@@ -10,8 +10,10 @@
 #   run.sh W opp0.json 6 --set lift.closure_opposed_above=0.0
 #   run.sh W opp08.json 6 --set lift.closure_opposed_above=0.8
 #   run.sh W force04.json 6 --set specialists.squeeze_force_fraction=0.4
+#   run.sh W rad2.json 6 --set lift.closure_radius_m=0.02
+#   run.sh W rad3.json 6 --set lift.closure_radius_m=0.03
 #   python -m benchmarks.controller_headroom base=base.json all=all.json opp0=opp0.json opp08=opp08.json \
-#       force04=force04.json --json headroom.json
+#       force04=force04.json rad2=rad2.json rad3=rad3.json --json headroom.json
 set -e
 W=${1:?usage: run.sh WORKDIR OUT.json TRIALS [--set KEY=VALUE ...]}
 OUT=${2:?usage: run.sh WORKDIR OUT.json TRIALS [--set KEY=VALUE ...]}
