@@ -34,8 +34,12 @@ Pose = tuple[str, int]
 
 def load(path: Path) -> dict[tuple[str, int, int], float]:
     """(combination, pose, trial) -> success of one ``lift_failures`` result."""
-    rows = json.loads(Path(path).read_text())["episodes"]
-    return {(e["combination"], int(e["pose"]), int(e["trial"])): float(e["success"]) for e in rows}
+    try:
+        rows = json.loads(Path(path).read_text())["episodes"]
+        return {(e["combination"], int(e["pose"]), int(e["trial"])): float(e["success"]) for e in rows}
+    except (ValueError, KeyError, TypeError):
+        raise SystemExit(f"controller_headroom: {path} is not a lift_failures result (no readable 'episodes'); "
+                         "make it with python -m benchmarks.lift_failures ... --json FILE") from None
 
 
 def _mean_se(values: list[float]) -> tuple[float, float]:
@@ -64,29 +68,20 @@ def headroom(runs: dict[str, dict[tuple[str, int, int], float]]) -> dict:
 
     halves = {pose: (sorted(t for t in trials[pose] if t % 2 == 0), sorted(t for t in trials[pose] if t % 2 == 1))
               for pose in poses}
-    selected_gain, selected_rate, chosen = [], [], collections.Counter()
-    fixed_rates = []
-    for a, b in ((0, 1), (1, 0)):
-        # best fixed variant on half a, scored on half b
+    chosen: collections.Counter = collections.Counter()
+    selected, fixed, fixed_names = np.zeros(len(poses)), np.zeros(len(poses)), []
+    for a, b in ((0, 1), (1, 0)):  # choose on half a, score on half b; each pose's two scores are averaged
         totals = {n: np.mean([rate(n, pose, halves[pose][a]) for pose in poses]) for n in names}
         best_fixed = max(names, key=lambda n: (totals[n], -names.index(n)))
-        fixed_rates.append((best_fixed, [rate(best_fixed, pose, halves[pose][b]) for pose in poses]))
+        fixed_names.append(best_fixed)
         for i, pose in enumerate(poses):
-            sel, held = halves[pose][a], halves[pose][b]
-            pick = max(names, key=lambda n: (rate(n, pose, sel), -names.index(n)))
+            pick = max(names, key=lambda n: (rate(n, pose, halves[pose][a]), -names.index(n)))
             chosen[pick] += 1
-            r = rate(pick, pose, held)
-            if a == 0:
-                selected_rate.append(r / 2)
-                selected_gain.append((r - rate(ref, pose, held)) / 2)
-            else:
-                selected_rate[i] += r / 2
-                selected_gain[i] += (r - rate(ref, pose, held)) / 2
+            selected[i] += rate(pick, pose, halves[pose][b]) / 2
+            fixed[i] += rate(best_fixed, pose, halves[pose][b]) / 2
+    # the reference scored the same way: the mean of its two half rates (its all-trial rate when the halves are equal)
+    ref_held = np.array([(rate(ref, pose, halves[pose][0]) + rate(ref, pose, halves[pose][1])) / 2 for pose in poses])
     ref_rate = [rate(ref, pose, trials[pose]) for pose in poses]
-    fixed_per_pose = [(x + y) / 2 for x, y in zip(fixed_rates[0][1], fixed_rates[1][1])]
-    # the reference on the same held-out halves is its rate on all trials (each half is scored once)
-    fixed_gain = [f - (rate(ref, pose, halves[pose][1]) + rate(ref, pose, halves[pose][0])) / 2
-                  for f, pose in zip(fixed_per_pose, poses)]
     oracle = [max(rate(n, pose, trials[pose]) for n in names) for pose in poses]
     ever = [any(runs[n][(pose[0], pose[1], t)] > 0 for n in names for t in trials[pose]) for pose in poses]
     per_variant = {}
@@ -94,10 +89,10 @@ def headroom(runs: dict[str, dict[tuple[str, int, int], float]]) -> dict:
         m, _ = _mean_se([rate(n, pose, trials[pose]) for pose in poses])
         d, se = _mean_se([rate(n, pose, trials[pose]) - rate(ref, pose, trials[pose]) for pose in poses])
         per_variant[n] = {"success": m, "minus_reference": d, "minus_reference_se": se}
-    sel_m, _ = _mean_se(selected_rate)
-    sel_d, sel_se = _mean_se(selected_gain)
-    fix_m, _ = _mean_se(fixed_per_pose)
-    fix_d, fix_se = _mean_se(fixed_gain)
+    sel_m, _ = _mean_se(selected)
+    sel_d, sel_se = _mean_se(selected - ref_held)
+    fix_m, _ = _mean_se(fixed)
+    fix_d, fix_se = _mean_se(fixed - ref_held)
     return {
         "reference": ref,
         "n_poses": len(poses),
@@ -106,7 +101,7 @@ def headroom(runs: dict[str, dict[tuple[str, int, int], float]]) -> dict:
         "selected_per_pose_held_out": {"success": sel_m, "minus_reference": sel_d, "minus_reference_se": sel_se,
                                        "times_chosen": dict(chosen)},
         "best_fixed_held_out": {"success": fix_m, "minus_reference": fix_d, "minus_reference_se": fix_se,
-                                "chosen": [fixed_rates[0][0], fixed_rates[1][0]]},
+                                "chosen": fixed_names},
         "in_sample_oracle": float(np.mean(oracle)),
         "ever_lifted_poses": float(np.mean(ever)),
         "reference_success": float(np.mean(ref_rate)),

@@ -54,3 +54,6 @@ def test_ties_keep_the_reference_and_cli_writes_json(tmp_path):
         main(paths[:1])
     with pytest.raises(SystemExit, match="does not exist"):
         main(paths[:1] + [f"x={tmp_path / 'missing.json'}"])
+    (tmp_path / "foreign.json").write_text(json.dumps({"rows": []}))
+    with pytest.raises(SystemExit, match="not a lift_failures result"):
+        main(paths[:1] + [f"x={tmp_path / 'foreign.json'}"])
