@@ -1,13 +1,15 @@
 """Learnability start sampling (components/execution/start_sampling.py): the score against its formula, the draw
 against its probabilities, and the env counting training episodes only."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from components.execution import GraspRecord, LiftEnv, LiftEnvConfig
 from components.execution.cameras import CameraConfig, preview_hand_pose
 from components.execution.pointnet import PointNetConfig, PointNetEncoder
-from components.execution.start_sampling import LearnabilitySampler
+from components.execution.start_sampling import FileLock, LearnabilitySampler
 from components.objects import Placement, Scene
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -106,6 +108,47 @@ def test_the_sampler_counts_into_a_given_array_and_refuses_a_wrong_one():
     assert counts.tolist() == [[0, 0], [2, 1]]
     with pytest.raises(ValueError, match="expected"):
         LearnabilitySampler(3, prior=0.5, power=2.0, uniform_mix=0.2, counts=counts)
+
+
+def _count_into_shared_file(path: str, n: int) -> None:
+    from components.execution.factory import open_start_counts
+
+    sampler = LearnabilitySampler(1, prior=0.5, power=2.0, uniform_mix=0.2, counts=open_start_counts(Path(path)),
+                                  lock=FileLock(path))
+    for i in range(n):
+        sampler.update(0, i % 2 == 0)
+
+
+def test_workers_counting_into_one_file_under_its_lock_lose_no_count(tmp_path):
+    """Two processes that end episodes at the same moments on one memory-mapped file: the lock makes every
+    read-increment-write whole, so no count is lost (the CI run of stop 46 lost one without it)."""
+    import multiprocessing
+
+    from components.execution.factory import open_start_counts
+
+    path = tmp_path / "counts.i64"
+    open_start_counts(path, 1)
+    n = 20_000
+    workers = [multiprocessing.get_context("fork").Process(target=_count_into_shared_file, args=(str(path), n))
+               for _ in range(2)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join(timeout=120)
+        assert worker.exitcode == 0
+    assert open_start_counts(path).tolist() == [[2 * n, n]]
+
+
+def test_a_file_lock_pickles_as_its_path(tmp_path):
+    import pickle
+
+    path = tmp_path / "counts.i64"
+    path.write_bytes(bytes(16))
+    lock = FileLock(str(path))
+    with lock():
+        pass
+    clone = pickle.loads(pickle.dumps(lock))
+    assert clone.path == str(path) and clone._fd is None
 
 
 def test_start_counts_summary_sorts_records_by_outcome(tmp_path):

@@ -12,6 +12,7 @@ import torch
 from components.execution.lift_config import LiftEnvConfig
 from components.execution.lift_env import LiftEnv
 from components.execution.pointnet import load_encoder
+from components.execution.start_sampling import FileLock
 from components.execution.records import load_records
 
 
@@ -47,9 +48,11 @@ class LiftEnvFactory:
         hand = HandModel(HandConfig(**self.hand_cfg))
         library = ObjectLibrary(ObjectsConfig(**self.objects_cfg), cache_dir=Path(self.objects_cache))
         encoder, _ = load_encoder(Path(self.encoder))
+        shared = self.start_counts is not None
         return LiftEnv(hand, library, Path(self.urdf), load_records(Path(self.records)),
                        LiftEnvConfig(**self.lift_cfg), encoder, record_order=self.record_order, seed=self.seed,
-                       start_counts=None if self.start_counts is None else open_start_counts(Path(self.start_counts)))
+                       start_counts=open_start_counts(Path(self.start_counts)) if shared else None,
+                       start_counts_lock=FileLock(self.start_counts) if shared else None)
 
 
 def open_start_counts(path: Path, n_records: Optional[int] = None) -> np.ndarray:

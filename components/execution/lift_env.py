@@ -26,9 +26,10 @@ several env copies in collector workers.
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Optional, Sequence
+from typing import Callable, Literal, Optional, Sequence
 
 import numpy as np
 import torch
@@ -69,10 +70,12 @@ class LiftEnv(EnvBase):
 
     def __init__(self, hand: HandModel, library: ObjectLibrary, urdf: Path, records: Sequence[GraspRecord],
                  cfg: LiftEnvConfig, encoder: Encoder, record_order: Literal["random", "cycle"] = "random",
-                 seed: int = 0, start_counts: Optional[np.ndarray] = None):
+                 seed: int = 0, start_counts: Optional[np.ndarray] = None,
+                 start_counts_lock: Optional[Callable[[], AbstractContextManager]] = None):
         """``start_counts``: with ``cfg.start_sampling`` 'learnability', an (N records, 2) int64 array of (episodes,
         successes) to count into and draw from, shared by the envs of several collector workers when it is a memory
-        map of one file (:func:`components.execution.factory.open_start_counts`)."""
+        map of one file (:func:`components.execution.factory.open_start_counts`); ``start_counts_lock``: the lock
+        every count update holds then (:class:`components.execution.start_sampling.FileLock` of that file)."""
         super().__init__(device="cpu", batch_size=torch.Size([]))
         if not records:
             raise MultigraspError("the lift env got no grasp records; run the synthesis stage first "
@@ -90,7 +93,7 @@ class LiftEnv(EnvBase):
         self.sampler = None  # LiftEnvConfig.start_sampling 'learnability': outcome counts per record
         if cfg.start_sampling == "learnability":
             self.sampler = LearnabilitySampler(len(self.records), cfg.learnability_prior, cfg.learnability_power,
-                                               cfg.learnability_uniform_mix, start_counts)
+                                               cfg.learnability_uniform_mix, start_counts, start_counts_lock)
         self._current: Optional[int] = None  # record index of a drawn (training) episode; None when forced
         dim = observation_dim(cfg, self.n_objects)
         self._joint_ranges = (self.world.upper - self.world.lower).tolist()  # rad, for worst_step_reward

@@ -17,15 +17,54 @@ Per record i the env counts its finished training episodes n_i and successes s_i
 with a = ``learnability_prior``, k = ``learnability_power`` and m = ``learnability_uniform_mix``.  The counts are
 the sampling policy's own outcomes (exploration included).  Given a shared (N, 2) count array (the memory map of
 one file, ``LiftEnvFactory.start_counts``), the envs of every collector worker count into and draw from the same
-evidence (an increment lost to a race between two workers costs one episode's count), and a training resumed
-after a crash keeps them; otherwise each env keeps its own.
+evidence (each count is read, incremented and written under an exclusive lock on the file, so two workers that
+end episodes at the same moment both count), and a training resumed after a crash keeps them; otherwise each env
+keeps its own.
 """
 
 from __future__ import annotations
 
-from typing import Optional
+import os
+from contextlib import AbstractContextManager, nullcontext
+from typing import Callable, Optional
 
 import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; concurrent workers may then lose a count now and then
+    fcntl = None
+
+
+class FileLock:
+    """An exclusive advisory lock (``fcntl.flock``) on one file, held inside ``with``; calling the instance returns
+    itself, so it serves as the ``lock`` factory of :class:`LearnabilitySampler`.  Without ``fcntl`` (Windows) it
+    locks nothing.  The file is opened on first use, so an unused lock pickles as a path."""
+
+    def __init__(self, path: str):
+        self.path = str(path)
+        self._fd: Optional[int] = None
+
+    def __call__(self) -> "FileLock":
+        return self
+
+    def __enter__(self) -> "FileLock":
+        if fcntl is not None:
+            if self._fd is None:
+                self._fd = os.open(self.path, os.O_RDWR)
+            fcntl.flock(self._fd, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if fcntl is not None and self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+    def __getstate__(self) -> dict:
+        return {"path": self.path, "_fd": None}
+
+    def __del__(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
 
 
 class LearnabilitySampler:
@@ -33,9 +72,11 @@ class LearnabilitySampler:
     docstring).  Plain numpy; one per env."""
 
     def __init__(self, n_records: int, prior: float, power: float, uniform_mix: float,
-                 counts: Optional[np.ndarray] = None):
+                 counts: Optional[np.ndarray] = None,
+                 lock: Optional[Callable[[], AbstractContextManager]] = None):
         """``counts``: an (n_records, 2) int64 array of (episodes, successes) per record to count into, e.g. a
-        memory map shared by several processes; a fresh one when None."""
+        memory map shared by several processes; a fresh one when None.  ``lock``: a factory of the context manager
+        that every update holds (for a shared ``counts``, an exclusive lock on its file); no lock when None."""
         if n_records < 1:
             raise ValueError("LearnabilitySampler needs at least one record")
         if prior <= 0.0 or power < 0.0 or not 0.0 <= uniform_mix <= 1.0:
@@ -48,6 +89,7 @@ class LearnabilitySampler:
                              f"expected ({n_records}, 2) int64")
         self.prior, self.power, self.uniform_mix = float(prior), float(power), float(uniform_mix)
         self.counts = counts
+        self._lock = lock or nullcontext
         self.episodes, self.successes = counts[:, 0], counts[:, 1]  # views: updates write into counts
 
     def success_estimates(self) -> np.ndarray:
@@ -71,5 +113,6 @@ class LearnabilitySampler:
 
     def update(self, index: int, success: bool) -> None:
         """Count one finished training episode of record ``index``."""
-        self.episodes[index] += 1
-        self.successes[index] += int(bool(success))
+        with self._lock():
+            self.episodes[index] += 1
+            self.successes[index] += int(bool(success))
