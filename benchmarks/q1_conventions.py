@@ -10,7 +10,9 @@ and UniDexGrasp (the same line of work) is another.  This tool scores the accept
 ``multigrasp evaluate``, or read from ``--grasps``) under every convention of :data:`CONVENTIONS`
 and, for scale, the same conventions' Q1 of an ideal grasp: a sphere held by six contacts along
 +-x, +-y, +-z (no hand; dense conventions only).  One JSON object is written: per convention its
-metric overrides, mean Q1, the fraction of grasps with Q1 > 0 and the ideal value.
+metric overrides, mean Q1 (min over a grasp's objects, this project's multi-object Q1), the fraction of grasps
+with Q1 > 0, ``q1_object_mean`` (every object's own Q1 averaged over objects and grasps: the reading of a paper
+that averages over objects rather than taking the weakest) and the ideal value.
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ def ideal_six_contact_q1(metrics) -> float | None:
 
 
 def score(frame, metrics_list, cfg) -> list[np.ndarray]:
-    """Multi-object Q1 of every row of ``frame`` under each ``MetricsConfig`` of ``metrics_list`` (hand and objects
-    of the pipeline config ``cfg``)."""
+    """Per-object Q1 (rows, most objects in a row; NaN past a row's own objects) of every row of ``frame`` under each
+    ``MetricsConfig`` of ``metrics_list`` (hand and objects of the pipeline config ``cfg``)."""
     from components.hand import HandModel
     from components.metrics import q1_grasps
     from components.objects import ObjectLibrary
@@ -57,13 +59,14 @@ def score(frame, metrics_list, cfg) -> list[np.ndarray]:
 
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    out = [np.zeros(len(frame)) for _ in metrics_list]
+    width = max(len(names) for names in frame["object_names"])
+    out = [np.full((len(frame), width), np.nan) for _ in metrics_list]
     surfaces = {}
     for number, (rows, objects, p, R, q) in enumerate(scene_batches(frame, hand, library), 1):
         for k, metrics in enumerate(metrics_list):
             spacing = metrics.q1_hand_point_spacing_m
             surfaces.setdefault(spacing, HandSurface(hand, spacing))
-            out[k][rows] = q1_grasps(hand, objects, p, R, q, metrics, surfaces[spacing])[0].numpy()
+            out[k][rows, : objects.n_objects] = q1_grasps(hand, objects, p, R, q, metrics, surfaces[spacing])[1].numpy()
         print(f"q1 conventions: scene {number} ({len(rows)} grasps)", file=sys.stderr, flush=True)
     return out
 
@@ -75,8 +78,10 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
     base = cfg.synthesis.metrics
     metrics_list = [type(base).model_validate({**base.model_dump(), **overrides}) for overrides in CONVENTIONS.values()]
     values = score(frame, metrics_list, cfg)
-    rows = [{"convention": name, "overrides": overrides, "q1_mean": round(float(v.mean()), 4),
-             "q1_positive": round(float((v > 0).mean()), 4), "ideal_six_contact_sphere": ideal_six_contact_q1(m)}
+    rows = [{"convention": name, "overrides": overrides, "q1_mean": round(float(np.nanmin(v, 1).mean()), 4),
+             "q1_positive": round(float((np.nanmin(v, 1) > 0).mean()), 4),
+             "q1_object_mean": round(float(np.nanmean(v)), 4),
+             "ideal_six_contact_sphere": ideal_six_contact_q1(m)}
             for (name, overrides), v, m in zip(CONVENTIONS.items(), values, metrics_list)]
     return {"grasps": str(grasps), "split": split, "n": len(frame), "conventions": rows}
 
@@ -84,8 +89,8 @@ def run(grasps: Path, cfg, split: str | None, max_grasps: int) -> dict:
 def report(result: dict) -> None:
     """One line per convention on stdout."""
     for row in result["conventions"]:
-        print(f"{row['q1_mean']:.4f}  (Q1 > 0: {row['q1_positive']:.0%}, ideal {row['ideal_six_contact_sphere']})  "
-              f"{row['convention']}")
+        print(f"{row['q1_mean']:.4f}  (Q1 > 0: {row['q1_positive']:.0%}, mean over objects {row['q1_object_mean']:.4f}, "
+              f"ideal {row['ideal_six_contact_sphere']})  {row['convention']}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -55,19 +55,21 @@ def bench_optimizer(cfg, steps_scale: float):
 def accepted_quality(hand, library, scene, result, metrics, group: bool = False) -> dict:
     """Mean Q1, mean PN (mm) and Div (deg) of the first :data:`QUALITY_MAX` accepted grasps of a
     :class:`~components.synthesis.SynthesisResult` (``None`` each when none is accepted; Div needs two),
-    and ``quality_n``, how many were scored.  ``q1`` is always the min over objects (the hand alone); with
+    and ``quality_n``, how many were scored.  ``q1`` is always the min over objects (the hand alone) and
+    ``q1_per_object`` the mean over the grasps of each object's Q1 (scene order: which object limits ``q1``); with
     ``group`` (``fc_mode='group'``) ``q1_group`` is the objects-as-one-body Q1 too."""
     from components.metrics import joint_diversity_deg, penetration_depth, q1_grasps
     from components.synthesis import SceneObjects
 
     index = result.accepted.nonzero().flatten()[:QUALITY_MAX]
     if not len(index):
-        return {"q1": None, "pn_mm": None, "div_deg": None, "quality_n": 0}
+        return {"q1": None, "q1_per_object": None, "pn_mm": None, "div_deg": None, "quality_n": 0}
     objects = SceneObjects(library, scene, hand.device, hand.dtype)
     p, R, q = result.p[index], result.R[index], result.q[index]
     measured, per_object = q1_grasps(hand, objects, p, R, q, metrics, group=group)
     extra = {"q1_group": round(float(measured.mean()), 4)} if group else {}
-    return {"q1": round(float(per_object.amin(-1).mean()), 4), **extra,
+    return {"q1": round(float(per_object.amin(-1).mean()), 4),
+            "q1_per_object": [round(float(v), 4) for v in per_object.mean(0)], **extra,
             "pn_mm": round(float(penetration_depth(hand, objects, p, R, q, metrics).pn_mm.mean()), 3),
             "div_deg": round(float(joint_diversity_deg(q.cpu())), 3) if len(index) > 1 else None,
             "quality_n": len(index)}

@@ -43,6 +43,32 @@ def test_scores_every_convention(hand, tmp_path, capsys):
     assert mu1["q1_mean"] > mine["q1_mean"]  # wider friction cones, larger hull
     assert mine["ideal_six_contact_sphere"] == pytest.approx(0.5 * np.sqrt(2.0 / 3.0), rel=1e-3)  # mu sqrt(2/3)
     assert "DexGraspNet" in capsys.readouterr().out
+    for row in rows.values():  # one object: its own Q1 is the grasp's
+        assert row["q1_object_mean"] == pytest.approx(row["q1_mean"], abs=1e-4)
+
+
+def test_the_object_mean_counts_an_untouched_object_as_zero(hand, tmp_path):
+    """A second object far from the hand has Q1 0: the grasp's Q1 (min over objects) is 0 and the mean over objects
+    half the held sphere's."""
+    table = held_sphere_table(hand, accepted=(True,))
+    single = tmp_path / "single.parquet"
+    pq.write_table(table, single)
+    pair = tmp_path / "pair.parquet"
+    pq.write_table(table.set_column(table.schema.get_field_index("object_names"), "object_names",
+                                    pa.array([["sphere", "cube"]]))
+                   .set_column(table.schema.get_field_index("object_positions"), "object_positions",
+                               pa.array([SPHERE_AT + [0.4, 0.4, 0.03]]))
+                   .set_column(table.schema.get_field_index("object_quats_xyzw"), "object_quats_xyzw",
+                               pa.array([[0.0, 0.0, 0.0, 1.0] * 2])), pair)
+    rows = {}
+    for name, path in (("single", single), ("pair", pair)):
+        out = tmp_path / f"{name}.json"
+        assert main(["--grasps", str(path), "--profile", "smoke", "--workdir", str(tmp_path / "run"),
+                     "--set", "objects.train=[sphere,cube]", "--set", "objects.ood=[]", "--json", str(out)]) == 0
+        rows[name] = json.loads(out.read_text())["conventions"][0]
+    assert rows["single"]["q1_mean"] > 0.0
+    assert rows["pair"]["q1_mean"] == 0.0 and rows["pair"]["q1_positive"] == 0.0
+    assert rows["pair"]["q1_object_mean"] == pytest.approx(rows["single"]["q1_mean"] / 2.0, rel=1e-6)
 
 
 def test_missing_grasps_file_is_one_line(tmp_path, capsys):

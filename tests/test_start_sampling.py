@@ -110,32 +110,42 @@ def test_the_sampler_counts_into_a_given_array_and_refuses_a_wrong_one():
         LearnabilitySampler(3, prior=0.5, power=2.0, uniform_mix=0.2, counts=counts)
 
 
-def _count_into_shared_file(path: str, n: int) -> None:
-    from components.execution.factory import open_start_counts
-
-    sampler = LearnabilitySampler(1, prior=0.5, power=2.0, uniform_mix=0.2, counts=open_start_counts(Path(path)),
-                                  lock=FileLock(path))
-    for i in range(n):
-        sampler.update(0, i % 2 == 0)
+#: A separate interpreter that counts n episodes of record 0 into a counts file under its lock, starting at a given
+#: time so that the two counters overlap.
+COUNTER = """
+import sys, time
+import numpy as np
+from components.execution.start_sampling import FileLock, LearnabilitySampler
+path, n, start_at = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+counts = np.memmap(path, dtype=np.int64, mode="r+", shape=(1, 2))
+sampler = LearnabilitySampler(1, prior=0.5, power=2.0, uniform_mix=0.2, counts=counts, lock=FileLock(path))
+while time.time() < start_at:
+    pass
+for i in range(n):
+    sampler.update(0, i % 2 == 0)
+"""
 
 
 def test_workers_counting_into_one_file_under_its_lock_lose_no_count(tmp_path):
     """Two processes that end episodes at the same moments on one memory-mapped file: the lock makes every
-    read-increment-write whole, so no count is lost (the CI run of stop 46 lost one without it)."""
-    import multiprocessing
+    read-increment-write whole, so no count is lost (the CI run of stop 46 lost one without it; without the lock
+    this test loses ~7 % of the counts)."""
+    import subprocess
+    import sys
+    import time
 
     from components.execution.factory import open_start_counts
 
     path = tmp_path / "counts.i64"
     open_start_counts(path, 1)
     n = 20_000
-    workers = [multiprocessing.get_context("fork").Process(target=_count_into_shared_file, args=(str(path), n))
+    start_at = time.time() + 3.0  # both interpreters are up by then
+    workers = [subprocess.Popen([sys.executable, "-c", COUNTER, str(path), str(n), str(start_at)],
+                                cwd=Path(__file__).resolve().parents[1], stderr=subprocess.PIPE, text=True)
                for _ in range(2)]
     for worker in workers:
-        worker.start()
-    for worker in workers:
-        worker.join(timeout=120)
-        assert worker.exitcode == 0
+        _, err = worker.communicate(timeout=300)
+        assert worker.returncode == 0, err
     assert open_start_counts(path).tolist() == [[2 * n, n]]
 
 

@@ -273,6 +273,10 @@ def test_bench_synthesis_writes_its_json(tmp_path):
             "quality_n"} <= set(result)
     assert result["workload"]["batch"] == 256 and result["workload"]["objects"] == ["cube", "cylinder"]
     assert result["step_ms"] > 0 and result["fk_ms"] > 0
+    if result["quality_n"]:  # the min over objects is at most each object's mean
+        assert len(result["q1_per_object"]) == 2 and result["q1"] <= min(result["q1_per_object"]) + 1e-4
+    else:
+        assert result["q1_per_object"] is None
 
 
 def test_merge_code_is_outside_the_shard_cache_keys():
