@@ -158,7 +158,7 @@ def plot_energy_terms(path: Path, table, bins: int) -> Path:
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     if names:
-        axes.flat[0].legend(fontsize=7)
+        axes.flat[0].legend(fontsize=7, loc="upper right")  # "best" searches the bars: slow, and warns
     fig.suptitle(f"energy terms of {table.num_rows} candidates ({accepted.num_rows} accepted)")
     fig.tight_layout()
     return atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))

@@ -39,19 +39,21 @@ except ImportError:  # Windows: no advisory locks; concurrent workers may then l
 class FileLock:
     """An exclusive advisory lock (``fcntl.flock``) on one file, held inside ``with``; calling the instance returns
     itself, so it serves as the ``lock`` factory of :class:`LearnabilitySampler`.  Without ``fcntl`` (Windows) it
-    locks nothing.  The file is opened on first use, so an unused lock pickles as a path."""
+    locks nothing.  The file is opened on first use in each process (a forked child opens its own: a descriptor
+    inherited across ``fork`` shares the parent's lock instead of excluding it), so a lock pickles as a path."""
 
     def __init__(self, path: str):
         self.path = str(path)
         self._fd: Optional[int] = None
+        self._pid: Optional[int] = None
 
     def __call__(self) -> "FileLock":
         return self
 
     def __enter__(self) -> "FileLock":
         if fcntl is not None:
-            if self._fd is None:
-                self._fd = os.open(self.path, os.O_RDWR)
+            if self._fd is None or self._pid != os.getpid():
+                self._fd, self._pid = os.open(self.path, os.O_RDWR), os.getpid()
             fcntl.flock(self._fd, fcntl.LOCK_EX)
         return self
 
@@ -60,10 +62,10 @@ class FileLock:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
 
     def __getstate__(self) -> dict:
-        return {"path": self.path, "_fd": None}
+        return {"path": self.path, "_fd": None, "_pid": None}
 
     def __del__(self) -> None:
-        if self._fd is not None:
+        if self._fd is not None and self._pid == os.getpid():
             os.close(self._fd)
 
 
