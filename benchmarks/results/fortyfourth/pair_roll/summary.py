@@ -1,3 +1,8 @@
+"""Summary of synthesis_experiment JSON-lines files (forty-fourth session, docs/experiments.md "Fingers along the
+object line"): accepted, Q1, per-object Q1, PN, Div per file and the per-scene Q1 difference against the first file.
+
+    .venv/bin/python benchmarks/results/fortyfourth/pair_roll/summary.py BASE.jsonl OTHER.jsonl ...
+"""
 import json, sys, numpy as np
 rows = {}
 for path in sys.argv[1:]:
