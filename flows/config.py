@@ -6,6 +6,10 @@ Every component owns its section (``HandConfig`` lives in ``components/hand``,
 
     defaults  ←  configs/<profile>.yaml  ←  --config FILE  ←  --set a.b=value (repeatable)
 
+A profile or ``--config`` file may start with ``include: [FILE, ...]`` (paths relative to that file): the included
+files are merged first, in order, and the file's own keys on top of them.  The bench and paper profiles share
+their multi-object scene and synthesis setting this way (``configs/shared/multi_object.yaml``).
+
 ``--set`` values are parsed as YAML (``--set objects.train=[cube,cylinder]``,
 ``--set run.seed=3``).  An unknown key or a bad value raises :class:`MultigraspError`
 with one line naming the key and what is allowed.
@@ -104,6 +108,33 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     return data
 
 
+#: Top-level key of a config file that lists files to merge under it (:func:`_read_with_includes`).
+INCLUDE_KEY = "include"
+
+
+def _read_with_includes(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The mapping of a config file with its ``include`` list resolved: each listed file (relative to ``path``'s
+    folder, itself possibly including others) merged in order, then the file's own keys on top."""
+    here = path.resolve()
+    data = _read_yaml(path)
+    includes = data.pop(INCLUDE_KEY, [])
+    if isinstance(includes, str):
+        includes = [includes]
+    if not isinstance(includes, list) or not all(isinstance(item, str) for item in includes):
+        raise MultigraspError(f"config file {path}: '{INCLUDE_KEY}' must be a file name or a list of file names "
+                              "(relative to the file's folder)")
+    tree: dict[str, Any] = {}
+    for item in includes:
+        target = (path.parent / item).resolve()
+        if target in chain + (here,):
+            raise MultigraspError(f"config file {path}: including '{item}' makes a cycle — remove one of the includes")
+        if not target.is_file():
+            raise MultigraspError(f"config file {path} includes '{item}', which is not a file — fix the path (relative "
+                                  "to the including file's folder)")
+        tree = _merge(tree, _read_with_includes(target, chain + (here,)))
+    return _merge(tree, data)
+
+
 def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for key, value in update.items():
@@ -181,10 +212,10 @@ def load_config(
         path = CONFIG_DIR / f"{profile}.yaml"
         if not path.is_file():
             raise MultigraspError(f"unknown profile '{profile}' — choose one of {', '.join(available_profiles())}")
-        tree = _merge(tree, _read_yaml(path))
+        tree = _merge(tree, _read_with_includes(path))
         tree.setdefault("profile", profile)
     if config_file:
-        tree = _merge(tree, _read_yaml(Path(config_file)))
+        tree = _merge(tree, _read_with_includes(Path(config_file)))
     for item in sets or []:
         path_parts, value = parse_set(item)
         tree = _assign(tree, path_parts, value)

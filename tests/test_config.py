@@ -91,3 +91,41 @@ def test_config_is_frozen():
     with pytest.raises(Exception):
         cfg.run.seed = 3  # type: ignore[misc]
     assert isinstance(cfg.run.workdir, Path)
+
+
+def test_include_merges_listed_files_in_order_under_the_file_itself(tmp_path):
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "shared" / "a.yaml").write_text("include: [b.yaml]\nscenes:\n  renders: 2\n  jobs_per_shard: 3\n")
+    (tmp_path / "shared" / "b.yaml").write_text("scenes:\n  renders: 1\nrun:\n  seed: 4\n")
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("include: shared/a.yaml\nscenes:\n  jobs_per_shard: 5\n")
+    cfg = load_config("smoke", config_file=mine)
+    # b under a (a's renders wins), a under the file (its jobs_per_shard wins), everything over the profile
+    assert (cfg.scenes.renders, cfg.scenes.jobs_per_shard, cfg.run.seed) == (2, 5, 4)
+    assert cfg.scenes.per_combination.train == load_config("smoke").scenes.per_combination.train
+
+
+def test_include_errors_are_one_line(tmp_path):
+    missing = tmp_path / "missing.yaml"
+    missing.write_text("include: [nowhere.yaml]\n")
+    assert "includes 'nowhere.yaml', which is not a file" in _one_line_error(profile="smoke", config_file=missing)
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("include: [loop.yaml]\n")
+    assert "makes a cycle" in _one_line_error(profile="smoke", config_file=loop)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("include: {a: 1}\n")
+    assert "must be a file name or a list of file names" in _one_line_error(profile="smoke", config_file=bad)
+
+
+def test_bench_and_paper_profiles_share_the_multi_object_setting():
+    """Both include configs/shared/multi_object.yaml: the paper profile runs the bench setting longer and wider, and
+    differs from it only in batch size and step counts."""
+    bench, paper = load_config("bench"), load_config("paper")
+    scale = {"batch_size", "approach_steps", "mala_steps", "refine_steps"}
+    assert bench.scenes.sampling == paper.scenes.sampling
+    for count in (1, 2, 3, 4, 5):
+        b = bench.synthesis.optimizer_for(count).model_dump(exclude=scale)
+        p = paper.synthesis.optimizer_for(count).model_dump(exclude=scale)
+        assert b == p, {k: (b[k], p[k]) for k in b if b[k] != p[k]}
+    assert paper.synthesis.optimizer.batch_size > bench.synthesis.optimizer.batch_size
+    assert paper.synthesis.optimizer_for(5).fc_mode == "group"
