@@ -1,5 +1,5 @@
 """One synthesis experiment on one seeded scene, with any optimiser setting: the tool behind the
-measurements in ``configs/bench.yaml`` and the README's "Synthesis settings" table.
+measurements in ``configs/shared/multi_object.yaml`` and the README's "Synthesis settings" table.
 
     python -m benchmarks.synthesis_experiment --objects cube,cylinder --seed 0 \\
         --profile bench --set batch_size=32 --set mala_steps=800 --device cpu --threads 1 --json out.jsonl
