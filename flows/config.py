@@ -117,8 +117,10 @@ def _read_with_includes(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, A
     folder, itself possibly including others) merged in order, then the file's own keys on top."""
     here = path.resolve()
     data = _read_yaml(path)
-    includes = data.pop(INCLUDE_KEY, [])
-    if isinstance(includes, str):
+    includes = data.pop(INCLUDE_KEY, None)
+    if includes is None:  # no key, or an empty 'include:'
+        includes = []
+    elif isinstance(includes, str):
         includes = [includes]
     if not isinstance(includes, list) or not all(isinstance(item, str) for item in includes):
         raise MultigraspError(f"config file {path}: '{INCLUDE_KEY}' must be a file name or a list of file names "
