@@ -403,3 +403,36 @@ def test_group_mode_energy_reports_one_force_closure_error_for_every_object(hand
     assert not torch.allclose(other["fc"], terms["fc"])  # a different criterion, same poses and contacts
     assert torch.allclose(other["dist"], terms["dist"]) and torch.allclose(other["pen"], terms["pen"])
 
+
+
+def test_opposition_energy_is_zero_for_a_pinch_and_grows_as_the_contacts_turn_to_one_side(sphere):
+    from components.synthesis.energy import contact_opposition_energy
+
+    _, pinch = sphere.object_sdf_and_normal(0, equator_points(sphere, [0.0, 90.0, 180.0]))
+    assert float(contact_opposition_energy(pinch, 0.5)[0]) == pytest.approx(0.0, abs=1e-12)  # 0 and 180 deg oppose
+    _, quarter = sphere.object_sdf_and_normal(0, equator_points(sphere, [0.0, 45.0, 90.0]))
+    # best pair 90 deg apart: -cos 90 = 0, so 0.5 - 0 short of 120 deg
+    assert float(contact_opposition_energy(quarter, 0.5)[0]) == pytest.approx(0.5, abs=1e-9)
+    _, wide = sphere.object_sdf_and_normal(0, equator_points(sphere, [0.0, 10.0, 130.0]))
+    assert float(contact_opposition_energy(wide, 0.5)[0]) == pytest.approx(0.0, abs=1e-12)  # 130 deg > 120
+    same = torch.tensor([[[1.0, 0.0, 0.0]] * 3], dtype=DTYPE)
+    assert float(contact_opposition_energy(same, 0.5)[0]) == pytest.approx(1.5)  # 1 + tau: all push the same way
+
+
+def test_opposition_weight_follows_the_force_closure_weight_and_enters_the_total(hand, library):
+    from components.synthesis.energy import opposition_weight
+
+    cfg = SynthesisConfig(batch_size=1, w_fc=20.0, w_opposition=10.0)
+    assert opposition_weight(cfg, 20.0) == pytest.approx(10.0)
+    assert opposition_weight(cfg, 10.0) == pytest.approx(5.0)  # the MALA ramp
+    assert opposition_weight(cfg, 0.0) == 0.0  # the approach stage
+    assert opposition_weight(SynthesisConfig(batch_size=1), 1.0) == 0.0  # off by default
+    p0, R0, q0, objects = finger_in_sphere_pose(hand, library, overlap=-0.002)
+    contacts = torch.tensor([[[0, 50, 100]]])
+    for normals in ("object", "hand"):
+        problem = GraspProblem.build(hand, objects, cfg.model_copy(update={"opposition_normals": normals}))
+        total, terms = energy(problem, pack(p0, R0, q0), contacts)
+        without, _ = energy(problem, pack(p0, R0, q0), contacts, w_fc=0.0)
+        with_fc_only = without + 20.0 * terms["fc"]
+        assert torch.allclose(total - with_fc_only, 10.0 * terms["opposition"], rtol=1e-9, atol=1e-12)
+        assert 0.0 <= float(terms["opposition"][0]) <= 1.5

@@ -313,3 +313,30 @@ def test_release_step_rule_is_the_official_gradient_step(hand, library):
     assert annealer.release_joint_weight() == pytest.approx(25.0)
     annealer.step = 40
     assert annealer.release_joint_weight() == pytest.approx(55.0)
+
+
+def test_best_contacts_with_the_opposition_term_choose_more_opposed_sets(hand, library):
+    """With w_opposition the reassignment's score includes E_opp, so the chosen sets oppose at least as often and
+    the contact part of the energy (E_opp included) still never rises."""
+    from components.synthesis.energy import best_contacts, contact_opposition_energy
+
+    plain, _ = _pair_problem(hand, library, w_fc=20.0)
+    opposed, _ = _pair_problem(hand, library, w_fc=20.0, w_opposition=50.0)
+    x, contacts = initial_poses(plain, torch.Generator().manual_seed(0))
+    p, R, q = unpack(x)
+    points, normals = hand.contact_candidates_and_normals(p, R, plain.effective_joints(q))
+
+    def opposition(c):  # (B,) sum over objects of E_opp of the chosen contacts (object normals)
+        total = torch.zeros(c.shape[0], dtype=points.dtype)
+        for j in range(c.shape[1]):
+            pts = points.gather(1, c[:, j].unsqueeze(-1).expand(-1, -1, 3))
+            _, n = plain.objects.object_sdf_and_normal(j, pts)
+            total = total + contact_opposition_energy(n, 0.5)
+        return total
+
+    without, with_term = best_contacts(plain, points, normals, contacts), best_contacts(opposed, points, normals, contacts)
+    assert float(opposition(with_term).sum()) < float(opposition(without).sum())  # seed 0: fewer one-sided sets
+    _, _, before = energy_and_grad(opposed, x, contacts)
+    _, _, after = energy_and_grad(opposed, x, with_term)
+    score = lambda t: 20.0 * t["fc"] + opposed.cfg.w_dist * t["dist"] + opposed.cfg.w_align * t["align"] + 50.0 * t["opposition"]
+    assert torch.all(score(after) <= score(before) + 1e-6)

@@ -114,6 +114,25 @@ class SynthesisConfig(Section):
         description="Friction coefficient of E_fc: each unit contact force may tilt inside its Coulomb cone to cancel the "
         "net force (energy.friction_tilted_forces).  0 = the official frictionless form, under which three contacts "
         "on a box's faces can never reach force closure; 0.5 matches the Q1 metric's metrics.friction_coefficient.")
+    w_opposition: float = Field(
+        0.0, ge=0.0,
+        description="Weight of the contact opposition energy E_opp (energy.contact_opposition_energy) = sum_j relu("
+        "opposition_min - max_{i<k} -m_i . m_k) over each object's chosen contacts: at least one pair of an object's "
+        "contacts must push from opposite sides (m: the normals of opposition_normals).  E_fc with friction cones "
+        "(fc_friction 0.5) and its margin balances contacts ~90 deg apart; the scripted squeeze lifts an object that "
+        "has opposing contacts at the pre-grasp 64 % of the time and one without 18 % (docs/experiments.md 'Why the "
+        "pre-grasps drop').  Scaled like E_fc in each stage (w_opposition x the stage's w_fc / w_fc: off in the "
+        "approach) and added to the contact reassignment's score.  0 = off (not in the official release).")
+    opposition_min: float = Field(
+        0.5, ge=-1.0, le=1.0,
+        description="E_opp's threshold on max_{i<k} -m_i . m_k: 0.5 = two contacts more than 120 deg apart (the "
+        "'opposed' of benchmarks.lift_failures); 1 = exactly opposite.")
+    opposition_normals: Literal["object", "hand"] = Field(
+        "object",
+        description="Normals m of E_opp: 'object' = the objects' outward normals at the contacts (what the lift's "
+        "opposition measures; piecewise constant on a box face, so on boxes only the reassignment acts on it), "
+        "'hand' = the hand patches' outward normals at the contacts (smooth in the pose and the joints, so the "
+        "gradient turns the fingers to face each other).")
     fc_friction_iterations: int = Field(
         1, ge=1,
         description="Projection steps of the friction tilt in E_fc (energy.friction_tilted_forces): each step hands the "

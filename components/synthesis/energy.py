@@ -161,6 +161,30 @@ def contact_alignment_energy(hand_normals: Tensor, object_normals: Tensor) -> Te
     return (1.0 + (hand_normals * object_normals).sum(-1)).sum(-1)
 
 
+def opposition_weight(cfg: SynthesisConfig, w_fc: float) -> float:
+    """E_opp's weight in a stage whose force-closure weight is ``w_fc``: ``w_opposition`` x w_fc / cfg.w_fc, so it
+    is off wherever E_fc is (the approach) and follows E_fc's MALA ramp."""
+    if cfg.w_opposition <= 0 or cfg.w_fc <= 0:
+        return 0.0
+    return cfg.w_opposition * w_fc / cfg.w_fc
+
+
+def contact_opposition_energy(normals: Tensor, threshold: float) -> Tensor:
+    """Contact opposition of one object (``w_opposition``; not in the official release):
+
+        E_opp = relu(tau - max_{i<k} -m_i . m_k),     tau = ``opposition_min``,
+
+    m_i the unit normal at contact i (the object's outward normal, or the hand patch's: -m_i . m_k is the same
+    for both when they face each other).  0 when two of the contacts push from sides more than arccos(-tau)
+    apart (tau 0.5: 120 deg, the 'opposed' of ``benchmarks.lift_failures``), 1 + tau when they all push the same
+    way.  The max passes its gradient to the best pair only.   normals (B, C, 3) -> (B,)."""
+    cosines = (normals.unsqueeze(2) * normals.unsqueeze(1)).sum(-1)  # (B, C, C)
+    count = normals.shape[1]
+    upper = torch.triu(torch.ones(count, count, dtype=torch.bool, device=normals.device), diagonal=1)
+    best = (-cosines[:, upper]).amax(-1) if count > 1 else torch.full_like(normals[:, 0, 0], -1.0)
+    return torch.relu(threshold - best)
+
+
 def object_points_in_hand(hand_signed_distance: Tensor) -> Tensor:
     """Object-into-hand penetration (paper E_p, first half):  E = sum_k relu(-d_H(o_k))  (m), over the
     object surface samples o_k, with d_H the hand's signed distance (negative inside a primitive).
@@ -469,6 +493,7 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
     w_fc = cfg.w_fc if w_fc is None else w_fc
     w_dist = cfg.w_dist if w_dist is None else w_dist
     w_align = cfg.w_align if w_align is None else w_align
+    w_opposition = opposition_weight(cfg, w_fc)
     finger_of = problem.finger_of
     n_fingers, per = int(finger_of.max()) + 1, cfg.contacts_per_object
     batch, n_cand = points.shape[:2]
@@ -489,6 +514,9 @@ def best_contacts(problem: "GraspProblem", points: Tensor, hand_normals: Tensor,
                                         cfg.fc_friction, gate, cfg.fc_friction_iterations)
              + w_dist * contact_distance_energy(d) + w_align * contact_alignment_energy(nrm, n)
              + cfg.w_contact_excess * contact_excess_energy(d, cfg.contact_excess_m))
+        if w_opposition > 0:
+            e = e + w_opposition * contact_opposition_energy(n if cfg.opposition_normals == "object" else nrm,
+                                                             cfg.opposition_min)
         return e.reshape(batch, n_sets)
 
     with torch.no_grad():
@@ -684,7 +712,7 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         contacts = region_contacts(problem, contacts, candidate_points.detach(), candidate_normals.detach())
     contact_points = gather_contacts(candidate_points, contacts)  # (B, n_obj, C, 3)
     contact_normals = gather_contacts(candidate_normals, contacts)
-    fc, dist, align, excess, contact_dist, surface_normals, gates = [], [], [], [], [], [], []
+    fc, dist, align, excess, contact_dist, surface_normals, gates, opposition = [], [], [], [], [], [], [], []
     for j in range(objects.n_objects):
         d, n = objects.object_sdf_and_normal(j, contact_points[:, j])  # (B, C), (B, C, 3)
         gate = contact_gate_weights(d, cfg.fc_contact_gate_m) if cfg.fc_contact_gate_m > 0 else None
@@ -696,6 +724,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
         dist.append(contact_distance_energy(d))
         excess.append(contact_excess_energy(d, cfg.contact_excess_m))
         align.append(contact_alignment_energy(contact_normals[:, j], n))
+        opposition.append(contact_opposition_energy(n if cfg.opposition_normals == "object" else contact_normals[:, j],
+                                                    cfg.opposition_min))
         contact_dist.append(d.detach().abs())
     if cfg.fc_mode == "group":
         fc_group = group_force_closure_error(problem, contact_points, torch.stack(surface_normals, dim=1),
@@ -723,13 +753,16 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     dist_total = dist_per_object.sum(-1)
     excess_total = torch.stack(excess, dim=-1).sum(-1)
     align_total = align_per_object.sum(-1)
+    opposition_total = torch.stack(opposition, dim=-1).sum(-1)
+    w_opposition = opposition_weight(cfg, w_fc)
     total = (w_fc * fc_total + w_dist * dist_total + cfg.w_pen * pen + cfg.w_prior * prior
-             + w_align * align_total + cfg.w_contact_excess * excess_total + w_surround * surround + w_q1 * q1_term)
+             + w_align * align_total + cfg.w_contact_excess * excess_total + w_surround * surround + w_q1 * q1_term
+             + w_opposition * opposition_total)
 
     with torch.no_grad():
         terms = {
             "fc": fc_total, "dist": dist_total, "pen": pen, "prior": prior, "align": align_total, "excess": excess_total,
-            "surround": surround, "q1": q1_term,
+            "surround": surround, "q1": q1_term, "opposition": opposition_total,
             "fc_per_object": fc_per_object, "dist_per_object": dist_per_object,
             "pen_object_points": pen_terms.object_points, "pen_hand_points": pen_terms.hand_points,
             "pen_self": pen_terms.self_, "pen_table": pen_terms.table,
