@@ -1,8 +1,8 @@
 """The multi-object DFC grasp energy (paper §"Preliminaries", Eq. multi-dfc-energy; DESIGN §5.1).
 
     E(H, O) = w_fc sum_j E_fc(x_j, O_j) + w_dist sum_j E_dist(x_j, O_j) + w_pen E_pen(H, O) + w_prior E_prior(H)
-              [+ w_sur sum_j E_sur(H, O_j) + w_q1 sum_j E_q1(H, O_j) + w_align E_align + w_excess E_excess:
-               options, off by default]
+              [+ w_sur sum_j E_sur(H, O_j) + w_q1 sum_j E_q1(H, O_j) + w_opp sum_j E_opp(x_j, O_j)
+               + w_align E_align + w_excess E_excess: options, off by default]
 
 H = (p, R, q) is the hand pose, O_j the posed objects of the scene and x_j the ``contacts_per_object``
 hand contact points assigned to object j (indices into ``HandModel.contact_candidates``; all distinct).
@@ -683,8 +683,8 @@ def energy(problem: GraspProblem, x: Tensor, contacts: Tensor, w_dist: Optional[
     overrides ``cfg.w_align`` (0 in the approach stage), ``w_surround`` overrides ``cfg.w_surround`` (0 in the
     approach stage), ``w_q1`` overrides ``cfg.w_q1`` (0 in the approach stage).
 
-    Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior``, ``surround``, ``q1`` (unweighted,
-    (B,));
+    Returns (total (B,), terms) with terms: ``fc``, ``dist``, ``pen``, ``prior``, ``surround``, ``q1``, ``opposition``
+    (unweighted, (B,); E_opp enters the total with :func:`opposition_weight`);
     ``fc_per_object``, ``dist_per_object``, ``pen_object_points``, ``pen_hand_points`` ((B, n_obj));
     ``pen_self``, ``pen_table`` ((B,)); diagnostics (detached, m): ``contact_distance_max``,
     ``penetration_depth_objects``, ``penetration_depth_table``, ``penetration_depth_self``,
