@@ -31,6 +31,12 @@ energy's contacts, from the table's ``contact_regions``; ``palm`` for the palm's
 do not, and the success rate of the episodes where some object uses it and of the others (README "Palm contacts").
 The summary's ``by_q1_threshold`` gives, for each of ``--q1-thresholds``, the poses whose stored Q1 is at least it
 and their success rate: what a stricter ``synthesis.min_q1`` would keep, and how well that lifts.
+
+Where the table has the synthesis' ``contacts`` column, each object row also gives ``contact_opposition``: the
+opposition of the objects' outward normals at the grasp's chosen contacts on it, at the stored (unperturbed)
+pre-grasp -- what ``synthesis.optimizer.w_opposition`` asks for -- and the summary splits the success rate by it
+(``episodes_every_object_contacts_opposed`` and the success of those episodes and of the others; docs/experiments.md
+"Opposed contacts in the energy").
 """
 
 from __future__ import annotations
@@ -121,10 +127,13 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                         moved = np.linalg.norm(closed.obj_pos - start_pos, axis=1)
                         q1 = float(group.iloc[pose]["q1"]) if "q1" in group else None
                         fingers = chosen_fingers(group.iloc[pose], hand.region_names)
+                        if trial == 0:
+                            contact_opp = chosen_contact_opposition(group.iloc[pose], hand, library)
                         for j, name in enumerate(env.records[pose].scene.names):
                             objects.append({
                                 "combination": combination, "pose": pose, "trial": trial, "object": name, "q1": q1,
                                 **({"contact_fingers": fingers[j]} if fingers is not None else {}),
+                                **({"contact_opposition": contact_opp[j]} if contact_opp is not None else {}),
                                 "pregrasp": before[j], "after_closure": after[j],
                                 "closure_moved_mm": round(1e3 * float(moved[j]), 3),
                                 "final_lift_m": round(float(lifts[j]), 4), "lifted": bool(lifts[j] > height)})
@@ -149,6 +158,38 @@ def chosen_fingers(row, region_names: list) -> list[list[str]] | None:
         return None
     regions = np.asarray(row["contact_regions"], dtype=np.int64).reshape(len(row["object_names"]), -1)
     return [sorted({region_names[r].split("_")[0] for r in obj}) for obj in regions]
+
+
+def contacts_opposition(objects, points) -> list[float]:
+    """Per object j of ``objects`` (a :class:`components.synthesis.SceneObjects`): :func:`opposition` of the object's
+    outward normals at its contact points ``points[j]`` ((n_obj, C, 3) world points, any array-like)."""
+    import torch
+
+    pts = torch.as_tensor(np.asarray(points, dtype=np.float64), dtype=objects.positions.dtype)
+    with torch.no_grad():
+        return [round(opposition(objects.object_sdf_and_normal(j, pts[j].unsqueeze(0))[1][0].numpy()), 4)
+                for j in range(objects.n_objects)]
+
+
+def chosen_contact_opposition(row, hand, library) -> list[float] | None:
+    """:func:`contacts_opposition` of the row's chosen contacts (its ``contacts`` column: n_obj * C candidate indices,
+    object-major) at its stored pose; None without that column."""
+    if "contacts" not in row or row["contacts"] is None:
+        return None
+    import torch
+
+    from components.objects import Scene
+    from components.synthesis import SceneObjects
+
+    scene = Scene.from_arrays(row["object_names"], row["object_positions"], row["object_quats_xyzw"])
+    objects = SceneObjects(library, scene, hand.device, hand.dtype)
+    p = torch.as_tensor(np.array(row["p"], dtype=np.float64), dtype=hand.dtype).reshape(1, 3)
+    R = torch.as_tensor(np.array(row["R"], dtype=np.float64), dtype=hand.dtype).reshape(1, 3, 3)
+    q = torch.as_tensor(np.array(row["q"], dtype=np.float64), dtype=hand.dtype).reshape(1, -1)
+    with torch.no_grad():
+        points, _ = hand.contact_candidates_and_normals(p, R, q)  # (1, K, 3)
+    index = np.asarray(row["contacts"], dtype=np.int64).reshape(objects.n_objects, -1)
+    return contacts_opposition(objects, points[0].double().numpy()[index])
 
 
 def by_contact_finger(episodes: list[dict], objects: list[dict]) -> dict:
@@ -184,6 +225,23 @@ def by_q1_threshold(episodes: list[dict], objects: list[dict], thresholds: Seque
         rows.append({"min_q1": float(t), "poses": sum(1 for v in q1.values() if v >= t), "episodes": len(kept),
                      "success": _rate(kept)})
     return rows
+
+
+def by_contact_opposition(episodes: list[dict], by_episode: dict[tuple, list[dict]], opposed_above: float) -> dict:
+    """The share of episodes whose every object has its chosen contacts opposed (``contact_opposition`` above
+    ``opposed_above``), and the success rate of those episodes and of the others; {} when the objects lack it."""
+    flags, success = [], []
+    for e in episodes:
+        mine = by_episode.get((e["combination"], e["pose"], e["trial"]), [])
+        if not mine or any("contact_opposition" not in o for o in mine):
+            continue
+        flags.append(all(o["contact_opposition"] > opposed_above for o in mine))
+        success.append(e["success"])
+    if not flags:
+        return {}
+    return {"episodes_every_object_contacts_opposed": _rate(flags),
+            "success_if_every_object_contacts_opposed": _rate([s for s, f in zip(success, flags) if f]),
+            "success_if_not_every_object_contacts_opposed": _rate([s for s, f in zip(success, flags) if not f])}
 
 
 def _rate(flags) -> float | None:
@@ -227,6 +285,7 @@ def summarise(episodes: list[dict], objects: list[dict], opposed_above: float,
                                            if "normal_force_n" in o["after_closure"]]),
         "closure_moved_mm_median": (round(float(np.median([o["closure_moved_mm"] for o in objects])), 2)
                                     if objects else None),
+        **by_contact_opposition(episodes, by_episode, opposed_above),
         "by_contact_finger": by_contact_finger(episodes, objects),
         "by_q1_threshold": by_q1_threshold(episodes, objects, q1_thresholds),
     }

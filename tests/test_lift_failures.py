@@ -138,3 +138,62 @@ def test_by_q1_threshold_keeps_the_poses_at_or_above_each_threshold():
     assert [(r["min_q1"], r["poses"], r["episodes"], r["success"]) for r in rows] == [
         (0.0, 2, 4, 0.75), (0.1, 2, 4, 0.75), (0.2, 1, 2, 1.0), (0.5, 0, 0, None)]
     assert by_q1_threshold(episodes, [dict(o, q1=None) for o in objects], [0.0]) == []
+
+
+def test_contacts_opposition_of_points_on_a_sphere(library):
+    """The objects' normals at the chosen contacts: a pinch across the sphere's equator is opposed (1), three
+    contacts within a quarter turn are not (0: the widest pair is 90 degrees apart)."""
+    import torch
+
+    from benchmarks.lift_failures import contacts_opposition
+    from components.objects import Placement, Scene
+    from components.synthesis import SceneObjects
+
+    centre, radius = np.array([0.01, -0.02, 0.025]), 0.025
+    objects = SceneObjects(library, Scene(objects=(Placement("sphere", tuple(centre), (0.0, 0.0, 0.0, 1.0)),)),
+                           dtype=torch.float64)
+
+    def ring(degrees):
+        a = np.radians(degrees)
+        return (centre + radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1))[None]  # (1, C, 3)
+
+    assert contacts_opposition(objects, ring([0.0, 90.0, 180.0])) == [pytest.approx(1.0, abs=1e-3)]
+    assert contacts_opposition(objects, ring([0.0, 45.0, 90.0])) == [pytest.approx(0.0, abs=1e-3)]
+
+
+def test_chosen_contact_opposition_reads_the_tables_contacts(hand, library):
+    import torch
+
+    from benchmarks.lift_failures import chosen_contact_opposition, contacts_opposition
+    from components.objects import Scene
+    from components.synthesis import SceneObjects
+
+    row = hand_above_sphere_table(hand).to_pandas().iloc[0]
+    assert chosen_contact_opposition(row, hand, library) is None  # no contacts column
+    row = row.copy()
+    row["contacts"] = np.array([0, 50, 100])
+    points, _ = hand.contact_candidates_and_normals(
+        torch.tensor([row["p"]], dtype=hand.dtype), torch.tensor(row["R"], dtype=hand.dtype).reshape(1, 3, 3),
+        torch.tensor([row["q"]], dtype=hand.dtype))
+    objects = SceneObjects(library, Scene.from_arrays(row["object_names"], row["object_positions"],
+                                                      row["object_quats_xyzw"]), hand.device, hand.dtype)
+    expected = contacts_opposition(objects, points[0, [0, 50, 100]].double().numpy()[None])
+    assert chosen_contact_opposition(row, hand, library) == expected
+    assert -1.0 <= expected[0] <= 1.0
+
+
+def test_summary_splits_the_success_by_the_chosen_contacts_opposition():
+    """Pose 0: both objects' chosen contacts opposed, success; pose 1: one of them not, failure; a table without
+    the column gives no such keys."""
+    episodes = [{"combination": "a+b", "pose": 0, "trial": 0, "success": True, "objects_lifted": 2, "n_objects": 2},
+                {"combination": "a+b", "pose": 1, "trial": 0, "success": False, "objects_lifted": 0, "n_objects": 2}]
+    objects = [{**_object(0, True, True, True), "contact_opposition": 0.9},
+               {**_object(0, True, True, True), "contact_opposition": 0.6},
+               {**_object(1, True, True, False), "contact_opposition": 0.9},
+               {**_object(1, True, True, False), "contact_opposition": 0.2}]
+    s = summarise(episodes, objects, 0.5)
+    assert s["episodes_every_object_contacts_opposed"] == 0.5
+    assert s["success_if_every_object_contacts_opposed"] == 1.0
+    assert s["success_if_not_every_object_contacts_opposed"] == 0.0
+    plain = summarise(episodes, [_object(0, True, True, True)] * 2 + [_object(1, True, True, False)] * 2, 0.5)
+    assert "episodes_every_object_contacts_opposed" not in plain

@@ -124,7 +124,7 @@ class SynthesisConfig(Section):
         "pre-grasps drop').  Scaled like E_fc in each stage (w_opposition x the stage's w_fc / w_fc: off in the "
         "approach) and added to the contact reassignment's score.  0 = off (not in the official release).  Measured "
         "(forty-sixth session, docs/experiments.md 'Opposed contacts in the energy'; 20 bench Syn-Pl pair scenes x 64, "
-        "50, object normals): poses with both objects' contacts opposed 81 % against 60 %, accepted 41.6 % against "
+        "50, object normals): poses with both objects' contacts opposed 81 % against 57 %, accepted 41.6 % against "
         "42.3 %, Q1 0.087 against 0.084, PN 1.19 against 1.07 mm, squeeze success 31.2 % against 32.0 % (100 poses x "
         "5): the opposed grasps that the term adds do not lift more; off by default.")
     opposition_min: float = Field(
