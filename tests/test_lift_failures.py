@@ -173,8 +173,9 @@ def test_chosen_contact_opposition_reads_the_tables_contacts(hand, library):
     row = row.copy()
     row["contacts"] = np.array([0, 50, 100])
     points, _ = hand.contact_candidates_and_normals(
-        torch.tensor([row["p"]], dtype=hand.dtype), torch.tensor(row["R"], dtype=hand.dtype).reshape(1, 3, 3),
-        torch.tensor([row["q"]], dtype=hand.dtype))
+        torch.tensor(np.array(row["p"]), dtype=hand.dtype).reshape(1, 3),
+        torch.tensor(np.array(row["R"]), dtype=hand.dtype).reshape(1, 3, 3),
+        torch.tensor(np.array(row["q"]), dtype=hand.dtype).reshape(1, -1))
     objects = SceneObjects(library, Scene.from_arrays(row["object_names"], row["object_positions"],
                                                       row["object_quats_xyzw"]), hand.device, hand.dtype)
     expected = contacts_opposition(objects, points[0, [0, 50, 100]].double().numpy()[None])
