@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.grasp_tables import PoseProgress, add_source_args, finish_tool, resolve_source
+from benchmarks.grasp_tables import PoseProgress, add_source_args, finish_tool, resolve_source, scene_batches
 from benchmarks.scripted_lift import add_lift_args, check_lift_args, scripted_setup, select_grasps
 
 
@@ -102,6 +102,7 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
             group = group.iloc[:max_poses]
             env = LiftEnv(hand, library, urdf, records_from_table(group), lift, encoder, record_order="cycle")
             world = env.world
+            contact_opp = chosen_contact_opposition(group, hand, library)
             try:
                 for pose in range(len(group)):
                     for trial in range(trials):
@@ -127,13 +128,12 @@ def run(grasps: Path, cfg, split: str | None, max_poses: int, trials: int, contr
                         moved = np.linalg.norm(closed.obj_pos - start_pos, axis=1)
                         q1 = float(group.iloc[pose]["q1"]) if "q1" in group else None
                         fingers = chosen_fingers(group.iloc[pose], hand.region_names)
-                        if trial == 0:
-                            contact_opp = chosen_contact_opposition(group.iloc[pose], hand, library)
                         for j, name in enumerate(env.records[pose].scene.names):
                             objects.append({
                                 "combination": combination, "pose": pose, "trial": trial, "object": name, "q1": q1,
                                 **({"contact_fingers": fingers[j]} if fingers is not None else {}),
-                                **({"contact_opposition": contact_opp[j]} if contact_opp is not None else {}),
+                                **({"contact_opposition": float(contact_opp[pose, j])}
+                                   if contact_opp is not None else {}),
                                 "pregrasp": before[j], "after_closure": after[j],
                                 "closure_moved_mm": round(1e3 * float(moved[j]), 3),
                                 "final_lift_m": round(float(lifts[j]), 4), "lifted": bool(lifts[j] > height)})
@@ -160,36 +160,39 @@ def chosen_fingers(row, region_names: list) -> list[list[str]] | None:
     return [sorted({region_names[r].split("_")[0] for r in obj}) for obj in regions]
 
 
-def contacts_opposition(objects, points) -> list[float]:
-    """Per object j of ``objects`` (a :class:`components.synthesis.SceneObjects`): :func:`opposition` of the object's
-    outward normals at its contact points ``points[j]`` ((n_obj, C, 3) world points, any array-like)."""
+def contacts_opposition(objects, points) -> np.ndarray:
+    """:func:`opposition` (rounded to 4 decimals, as the PyBullet one) of each object's outward normals at its contact
+    points: ``objects`` a :class:`components.synthesis.SceneObjects`, ``points`` (B, n_obj, C, 3) world points (any
+    array-like) -> (B, n_obj)."""
     import torch
 
     pts = torch.as_tensor(np.asarray(points, dtype=np.float64), dtype=objects.positions.dtype)
+    out = np.empty(pts.shape[:2])
     with torch.no_grad():
-        return [round(opposition(objects.object_sdf_and_normal(j, pts[j].unsqueeze(0))[1][0].numpy()), 4)
-                for j in range(objects.n_objects)]
+        for j in range(objects.n_objects):
+            normals = objects.object_sdf_and_normal(j, pts[:, j])[1].double().numpy()  # (B, C, 3)
+            out[:, j] = [round(opposition(n), 4) for n in normals]
+    return out
 
 
-def chosen_contact_opposition(row, hand, library) -> list[float] | None:
-    """:func:`contacts_opposition` of the row's chosen contacts (its ``contacts`` column: n_obj * C candidate indices,
-    object-major) at its stored pose; None without that column."""
-    if "contacts" not in row or row["contacts"] is None:
+def chosen_contact_opposition(frame, hand, library) -> np.ndarray | None:
+    """:func:`contacts_opposition` of every row's chosen contacts (the ``contacts`` column: n_obj * C candidate
+    indices, object-major) at its stored pose, (len(frame), n_obj) for rows of one object count; None without that
+    column.  One batched FK per scene (:func:`benchmarks.grasp_tables.scene_batches`)."""
+    if "contacts" not in frame or frame["contacts"].isna().any():
         return None
     import torch
 
-    from components.objects import Scene
-    from components.synthesis import SceneObjects
-
-    scene = Scene.from_arrays(row["object_names"], row["object_positions"], row["object_quats_xyzw"])
-    objects = SceneObjects(library, scene, hand.device, hand.dtype)
-    p = torch.as_tensor(np.array(row["p"], dtype=np.float64), dtype=hand.dtype).reshape(1, 3)
-    R = torch.as_tensor(np.array(row["R"], dtype=np.float64), dtype=hand.dtype).reshape(1, 3, 3)
-    q = torch.as_tensor(np.array(row["q"], dtype=np.float64), dtype=hand.dtype).reshape(1, -1)
-    with torch.no_grad():
-        points, _ = hand.contact_candidates_and_normals(p, R, q)  # (1, K, 3)
-    index = np.asarray(row["contacts"], dtype=np.int64).reshape(objects.n_objects, -1)
-    return contacts_opposition(objects, points[0].double().numpy()[index])
+    out = None
+    for rows, objects, p, R, q in scene_batches(frame, hand, library):
+        with torch.no_grad():
+            points, _ = hand.contact_candidates_and_normals(p, R, q)  # (B, K, 3)
+        index = np.stack(frame["contacts"].iloc[rows].to_numpy()).astype(np.int64).reshape(len(rows), objects.n_objects, -1)
+        chosen = points.double().numpy()[np.arange(len(rows))[:, None, None], index]  # (B, n_obj, C, 3)
+        if out is None:
+            out = np.empty((len(frame), objects.n_objects))
+        out[rows] = contacts_opposition(objects, chosen)
+    return out
 
 
 def by_contact_finger(episodes: list[dict], objects: list[dict]) -> dict:

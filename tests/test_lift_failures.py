@@ -153,12 +153,12 @@ def test_contacts_opposition_of_points_on_a_sphere(library):
     objects = SceneObjects(library, Scene(objects=(Placement("sphere", tuple(centre), (0.0, 0.0, 0.0, 1.0)),)),
                            dtype=torch.float64)
 
-    def ring(degrees):
+    def ring(degrees):  # (1, C, 3) points on the equator
         a = np.radians(degrees)
-        return (centre + radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1))[None]  # (1, C, 3)
+        return (centre + radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1))[None]
 
-    assert contacts_opposition(objects, ring([0.0, 90.0, 180.0])) == [pytest.approx(1.0, abs=1e-3)]
-    assert contacts_opposition(objects, ring([0.0, 45.0, 90.0])) == [pytest.approx(0.0, abs=1e-3)]
+    points = np.stack([ring([0.0, 90.0, 180.0]), ring([0.0, 45.0, 90.0])])  # (B 2, n_obj 1, C 3, 3)
+    np.testing.assert_allclose(contacts_opposition(objects, points), [[1.0], [0.0]], atol=1e-3)
 
 
 def test_chosen_contact_opposition_reads_the_tables_contacts(hand, library):
@@ -168,19 +168,22 @@ def test_chosen_contact_opposition_reads_the_tables_contacts(hand, library):
     from components.objects import Scene
     from components.synthesis import SceneObjects
 
-    row = hand_above_sphere_table(hand).to_pandas().iloc[0]
-    assert chosen_contact_opposition(row, hand, library) is None  # no contacts column
-    row = row.copy()
-    row["contacts"] = np.array([0, 50, 100])
+    frame = hand_above_sphere_table(hand).to_pandas()
+    assert chosen_contact_opposition(frame, hand, library) is None  # no contacts column
+    frame["contacts"] = [np.array([0, 50, 100]), np.array([3, 60, 120]), np.array([0, 50, 100])]
+    row = frame.iloc[1]
     points, _ = hand.contact_candidates_and_normals(
         torch.tensor(np.array(row["p"]), dtype=hand.dtype).reshape(1, 3),
         torch.tensor(np.array(row["R"]), dtype=hand.dtype).reshape(1, 3, 3),
         torch.tensor(np.array(row["q"]), dtype=hand.dtype).reshape(1, -1))
     objects = SceneObjects(library, Scene.from_arrays(row["object_names"], row["object_positions"],
                                                       row["object_quats_xyzw"]), hand.device, hand.dtype)
-    expected = contacts_opposition(objects, points[0, [0, 50, 100]].double().numpy()[None])
-    assert chosen_contact_opposition(row, hand, library) == expected
-    assert -1.0 <= expected[0] <= 1.0
+    expected = contacts_opposition(objects, points[:, [3, 60, 120]].double().numpy()[:, None])  # (1, 1)
+    result = chosen_contact_opposition(frame, hand, library)
+    assert result.shape == (3, 1)
+    np.testing.assert_array_equal(result[1], expected[0])
+    np.testing.assert_array_equal(result[0], result[2])  # same pose and contacts
+    assert np.all((-1.0 <= result) & (result <= 1.0))
 
 
 def test_summary_splits_the_success_by_the_chosen_contacts_opposition():
