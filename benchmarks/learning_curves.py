@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from components.errors import MultigraspError
+from tasks.specialist_index import rebase_entry
 
 
 def find_bins(folder: Path) -> dict[str, tuple[list[dict], list[dict]]]:
@@ -29,7 +30,7 @@ def find_bins(folder: Path) -> dict[str, tuple[list[dict], list[dict]]]:
     index = folder / "index.json"
     if index.is_file():
         for label, entry in json.loads(index.read_text()).items():
-            unit = Path(entry["folder"])
+            unit = Path(rebase_entry(entry, folder.parent)["folder"])  # the bins beside the index, wherever it is now
             validations = unit / "validations.json"
             out[label] = (json.loads((unit / "history.json").read_text()),
                           json.loads(validations.read_text())["rows"] if validations.is_file() else [])

@@ -212,11 +212,14 @@ def _cmd_stages(_: argparse.Namespace) -> int:
 
 
 def _cmd_ui(args: argparse.Namespace) -> int:
-    from tasks.tracking import artifact_root, default_tracking_uri
+    from tasks.tracking import artifact_root, default_tracking_uri, relocate_embedded_store
 
     workdir = args.workdir.resolve()
     if not os.environ.get("MLFLOW_TRACKING_URI") and not (workdir / "mlflow.db").exists():
         raise MultigraspError(f"no MLflow store in {workdir} — run `multigrasp run` first or pass --workdir")
+    old = relocate_embedded_store(workdir)  # a copied work dir shows its own PNGs, not the old place's
+    if old:
+        print(f"artifact locations of {workdir / 'mlflow.db'} moved from {old} to {artifact_root(workdir)}", flush=True)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", default_tracking_uri(workdir),
            "--default-artifact-root", artifact_root(workdir), "--host", "127.0.0.1", "--port", str(args.port)]
     print(f"MLflow UI on http://127.0.0.1:{args.port} (Ctrl-C to stop)", flush=True)

@@ -152,13 +152,19 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     from components.execution.records import save_records
     from tasks.preflight import cache_dir
     from components.hand import HandModel
+    from components.hand.model import URDF_FILE_NAME
+    from tasks.specialist_index import read_specialist_index
     from tasks.specialists import select_records, spread_records, squeeze_lift
 
     stage = cfg.specialists
-    index = json.loads(outputs["specialists"].path("index").read_text())
+    index = read_specialist_index(outputs["specialists"])
+    # the URDF of this checkout (mesh paths of the installed package), not the copy in the specialist's folder, whose
+    # mesh paths name the installation that trained it
+    hand = HandModel(cfg.hand)
+    urdf = hand.export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
     groups: dict[str, list] = {}
     out = SplitResult()
-    squeeze = squeeze_lift(stage, HandModel(cfg.hand).actuated_joint_names) if scripted else None
+    squeeze = squeeze_lift(stage, hand.actuated_joint_names) if scripted else None
     records = [r for r in select_records(outputs["synthesize"], stage, [split])
                if len(r.scene.objects) == EVALUATED_OBJECTS]
     for record in spread_records(records, stage.eval_poses):
@@ -175,7 +181,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         from components.objects import ObjectLibrary
 
         reach_memo = {} if reach_memo is None else reach_memo
-        hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
+        library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     gif_paths: list[Path] = []
     progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups),
                          passes=3 if scripted else 1, every=stage.eval_progress_every)
@@ -184,11 +190,11 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
         combinations = [record.meta.get("combination") or "+".join(record.scene.names) for record in group]
         if stage.eval_after_reach:
-            group = reached_once(group, cfg, hand, library, Path(entry["folder"]) / "hand.urdf", reach_memo)
+            group = reached_once(group, cfg, hand, library, urdf, reach_memo)
             out.reached += len(group)
         factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
                                  objects_cache=str(cache_dir(cfg.run.workdir)),
-                                 urdf=str(Path(entry["folder"]) / "hand.urdf"),
+                                 urdf=str(urdf),
                                  records=str(save_records(scratch / f"{name}.json", group)),
                                  lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(outputs["pointnet"].path("encoder")))
         env = factory()

@@ -101,11 +101,12 @@ def log_stage(tracker: Tracker, result: StageResult) -> None:
     """MLflow: per-bin learning curves (metrics per iteration, prefixed by the bin) and their plots."""
     import json
 
+    from tasks.specialist_index import read_specialist_index
+
     tracker.log_metrics(result.run_id, result.manifest.metrics)
     if result.fully_cached:
         return
-    index = json.loads(result.manifest.path("index").read_text())
-    for label, entry in index.items():
+    for label, entry in read_specialist_index(result.manifest).items():
         folder = Path(entry["folder"])
         name = label.replace("+", "-")  # MLflow metric names allow no '+'
         for row in json.loads((folder / "history.json").read_text()):

@@ -114,7 +114,7 @@ class Manifest(BaseModel):
     stage: str = Field(description="Stage name, e.g. 'scenes'.")
     unit: str = Field(description="Unit within the stage, e.g. 'shard-003' or 'stage'.")
     key: str = Field(description="Cache key of the unit (folder name).")
-    folder: str = Field(description="Absolute path of the unit's folder.")
+    folder: str = Field(description="Absolute path of the unit's folder: where it was written, and after read_manifest the folder it was read from (a moved work dir).")
     files: dict[str, FileEntry] = Field(default_factory=dict, description="Outputs by logical name.")
     metrics: dict[str, float] = Field(default_factory=dict, description="Scalar results of the unit.")
     meta: dict[str, Any] = Field(default_factory=dict, description="Small JSON-able facts (counts, names).")
@@ -176,13 +176,29 @@ def write_manifest(
 
 
 def read_manifest(folder: Path) -> Manifest | None:
-    """The manifest in ``folder``, or None if it is absent or unreadable (corrupt = not done)."""
+    """The manifest in ``folder``, or None if it is absent or unreadable (corrupt = not done).
+
+    Its ``folder`` is the one it was read from, whatever folder it recorded when it was written: a work dir that was
+    moved or copied (``mv runs runs-old``, rsync from a cluster to a laptop) then verifies and serves the files it
+    holds, never those left at the old place (see :func:`recorded_folder`)."""
     path = Path(folder) / MANIFEST_NAME
     if not path.is_file():
         return None
     try:
-        return Manifest.model_validate_json(path.read_text())
+        manifest = Manifest.model_validate_json(path.read_text())
     except (ValueError, OSError):
+        return None
+    here = str(Path(folder).absolute())
+    return manifest if manifest.folder == here else manifest.model_copy(update={"folder": here})
+
+
+def recorded_folder(folder: Path) -> str | None:
+    """The folder that the manifest in ``folder`` recorded when it was written (None if there is no readable
+    manifest).  It differs from ``folder`` after the work dir was moved or copied."""
+    path = Path(folder) / MANIFEST_NAME
+    try:
+        return str(json.loads(path.read_text())["folder"])
+    except (ValueError, OSError, KeyError, TypeError):
         return None
 
 

@@ -34,6 +34,45 @@ def artifact_root(workdir: Path) -> str:
     return (Path(workdir).resolve() / "mlartifacts").as_uri()
 
 
+#: Columns of the embedded store that hold artifact locations (table, column); tables an MLflow version lacks are skipped.
+ARTIFACT_COLUMNS = (("experiments", "artifact_location"), ("runs", "artifact_uri"), ("logged_models", "artifact_location"))
+
+
+def relocate_embedded_store(workdir: Path) -> str | None:
+    """Point the embedded store's artifact locations at this work dir's ``mlartifacts``, if they name another place.
+
+    MLflow stores absolute artifact URIs in ``mlflow.db``.  After a work dir is moved or copied (rsync from a cluster
+    to a laptop), new runs would log their artifacts to the old place and the UI would look for the old runs' PNGs
+    there.  Every location under the old ``.../mlartifacts`` is rewritten to the same path under this work dir's.
+    Returns the old root when it rewrote something, else None.  Only the embedded sqlite store of the work dir is
+    touched (not a store named by ``MLFLOW_TRACKING_URI``), and only locations under its ``mlartifacts``.
+    """
+    import sqlite3
+
+    db = Path(workdir).resolve() / "mlflow.db"
+    if os.environ.get("MLFLOW_TRACKING_URI") or not db.is_file():
+        return None
+    new_root = artifact_root(workdir)
+    with sqlite3.connect(db) as conn:
+        tables = {row[0] for row in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if "experiments" not in tables:
+            return None
+        old_roots = {loc for (loc,) in conn.execute(
+            "SELECT artifact_location FROM experiments WHERE artifact_location LIKE 'file:%/mlartifacts'")}
+        old_roots.discard(new_root)
+        if not old_roots:
+            return None
+        for old in old_roots:
+            for table, column in ARTIFACT_COLUMNS:
+                if table in tables:
+                    conn.execute(f"UPDATE {table} SET {column} = ? || substr({column}, ?) "
+                                 f"WHERE {column} = ? OR substr({column}, 1, ?) = ?",
+                                 (new_root, len(old) + 1, old, len(old) + 1, old + "/"))
+    old = sorted(old_roots)[0]
+    log.info("MLflow store of %s: artifact locations moved from %s to %s", workdir, old, new_root)
+    return old
+
+
 def ui_command(workdir: Path) -> str:
     """The shell command that opens the MLflow UI on this work dir's store."""
     return "multigrasp ui --workdir " + str(workdir)
@@ -59,6 +98,8 @@ class Tracker:
         from mlflow.tracking import MlflowClient
 
         self.tracking_uri = tracking_uri
+        if tracking_uri == default_tracking_uri(workdir):
+            relocate_embedded_store(workdir)  # a moved or copied work dir logs its artifacts where it is now
         self.client = MlflowClient(tracking_uri)
         found = self.client.get_experiment_by_name(experiment)
         if found is None:

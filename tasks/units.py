@@ -23,7 +23,8 @@ from typing import Any
 
 from prefect.cache_policies import CachePolicy
 
-from tasks.artifacts import Manifest, unit_folder, unit_key, valid_manifest, write_manifest
+from tasks.artifacts import (MANIFEST_NAME, Manifest, atomic_write_text, recorded_folder, unit_folder, unit_key,
+                             valid_manifest, write_manifest)
 
 log = logging.getLogger("multigrasp")
 
@@ -83,12 +84,22 @@ class VerifiedUnitCache(CachePolicy):
 
     def compute_key(self, task_ctx, inputs: dict[str, Any], flow_parameters: dict[str, Any], **kwargs: Any):
         spec: UnitSpec = inputs["spec"]
+        record = spec.records_dir / spec.key
         if valid_manifest(spec.folder) is None:
-            record = spec.records_dir / spec.key
             if record.exists():
                 log.info("%s: cached files missing or altered; recomputing", spec.label)
                 record.unlink(missing_ok=True)
+        elif moved(spec) and record.exists():
+            # the work dir was moved or copied: the record holds a manifest naming the old folder, so drop it and
+            # let run_unit serve the verified files of this folder (nothing is recomputed)
+            record.unlink(missing_ok=True)
         return spec.key
+
+
+def moved(spec: UnitSpec) -> bool:
+    """Whether the unit's manifest was written in another folder (its work dir was moved or copied since)."""
+    recorded = recorded_folder(spec.folder)
+    return recorded is not None and recorded != str(Path(spec.folder).absolute())
 
 
 def record_execution(spec: UnitSpec) -> None:
@@ -125,6 +136,8 @@ def run_unit(spec: UnitSpec, body: Callable[[Path], UnitOutput]) -> Manifest:
     existing = valid_manifest(spec.folder)
     if existing is not None:
         log.info("%s: reusing verified outputs in %s", spec.label, spec.folder)
+        if moved(spec):  # record the folder the files are in now (read_manifest already serves them from here)
+            atomic_write_text(spec.folder / MANIFEST_NAME, existing.model_dump_json(indent=2) + "\n")
         return existing
     spec.folder.mkdir(parents=True, exist_ok=True)
     record_execution(spec)

@@ -3,8 +3,11 @@
 import json
 import os
 
-from tasks.artifacts import (atomic_write_json, atomic_write_text, code_version, read_manifest, sha256_file,
-                             unit_key, valid_manifest, verify, write_manifest)
+import shutil
+
+from tasks.artifacts import (atomic_write_json, atomic_write_text, code_version, read_manifest, recorded_folder,
+                             sha256_file, unit_key, valid_manifest, verify, write_manifest)
+from tasks.specialist_index import rebase_entry
 
 
 def _unit(tmp_path, text="hello"):
@@ -35,6 +38,28 @@ def test_missing_or_altered_file_invalidates_manifest(tmp_path):
     assert valid_manifest(manifest.folder) is None
     manifest.path("out").unlink()
     assert "missing" in verify(manifest)[0]
+
+
+def test_a_moved_unit_verifies_and_serves_the_files_where_it_is_now(tmp_path):
+    manifest = _unit(tmp_path / "a")
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    (tmp_path / "a" / "stages" / "demo" / "k1" / "out.txt").write_text("changed at the old place")
+    moved = read_manifest(tmp_path / "b" / "stages" / "demo" / "k1")
+    assert moved.folder == str(tmp_path / "b" / "stages" / "demo" / "k1") and moved.hash == manifest.hash
+    assert moved.path("out").read_text() == "hello" and valid_manifest(moved.folder) == moved
+    assert recorded_folder(moved.folder) == manifest.folder  # what it was written with, until rewritten
+    shutil.rmtree(tmp_path / "a")
+    assert valid_manifest(tmp_path / "b" / "stages" / "demo" / "k1") == moved
+
+
+def test_a_specialist_index_row_follows_its_stage_folder(tmp_path):
+    row = {"unit": "bin-0", "folder": "/old/runs/stages/specialists/k1", "policy": "/old/runs/stages/specialists/k1/policy.pt",
+           "records": "/old/runs/stages/specialists/k1/sub/records.json", "metrics": {"records": 3.0}}
+    moved = rebase_entry(row, tmp_path / "specialists")
+    assert moved == {**row, "folder": str(tmp_path / "specialists" / "k1"),
+                     "policy": str(tmp_path / "specialists" / "k1" / "policy.pt"),
+                     "records": str(tmp_path / "specialists" / "k1" / "sub" / "records.json")}
+    assert rebase_entry(moved, tmp_path / "specialists") == moved
 
 
 def test_corrupt_manifest_reads_as_not_done(tmp_path):

@@ -216,6 +216,55 @@ def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(r
 
 
 
+def test_a_moved_work_dir_keeps_its_specialists_and_evaluates_them_from_where_it_is(runs, tmp_path, monkeypatch):
+    """Trained on a cluster, evaluated on a laptop: the copied work dir serves every unit from its own cache and
+    lifts with its own policies and this installation's URDF, with the original work dir out of reach."""
+    import shutil
+
+    import components.execution.factory
+    import components.execution.ppo
+    import flows.evaluate_execution as ev
+
+    workdir, _, _ = runs
+    moved = tmp_path / "laptop-runs"
+    shutil.copytree(workdir, moved)
+    argv = _rerun_argv(workdir)
+    argv[argv.index("--workdir") + 1] = str(moved)
+    parked = workdir.with_name(workdir.name + "-parked")
+    workdir.rename(parked)
+    try:
+        done = executions(moved)
+        assert main(argv) == 0
+        assert executions(moved) == done, "the moved work dir recomputed finished units"
+        urdfs, policies = [], []
+        factory, load_actor = components.execution.factory.LiftEnvFactory, components.execution.ppo.load_actor
+
+        def spy_factory(**kwargs):
+            urdfs.append(kwargs["urdf"])
+            return factory(**kwargs)
+
+        def spy_load(path, env):
+            policies.append(str(path))
+            return load_actor(path, env)
+
+        monkeypatch.setattr(components.execution.factory, "LiftEnvFactory", spy_factory)
+        monkeypatch.setattr(components.execution.ppo, "load_actor", spy_load)
+        monkeypatch.setattr(ev, "EVALUATED_OBJECTS", 1)  # single-object specialists at this size (test above)
+        monkeypatch.setattr(ev, "matching_specialist", lambda label, index: next(iter(index)))
+        config = next((parked.parent).glob("exec-config*/stage.yaml"))
+        argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(moved), "--config", str(config)]
+        for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=2", "specialists.eval_trials=1",
+                     "specialists.gifs_per_outcome=0"]:
+            argv += ["--set", item]
+        assert main(argv) == 0
+        rows = json.loads((moved / "results" / "execution.json").read_text())["rows"]
+        assert sum(r["n_poses"] for r in rows) >= 1 and policies and urdfs
+        assert all(p.startswith(str(moved / "stages" / "specialists")) for p in policies)
+        assert all(u == str(moved / "cache" / "hand" / "shadow_hand.urdf") for u in urdfs)
+    finally:
+        parked.rename(workdir)
+
+
 def test_the_wo_rl_row_lifts_from_the_pre_grasp_without_the_grasp_closure():
     from components.execution.factory import LiftEnvFactory
     from flows.evaluate_execution import without_closure

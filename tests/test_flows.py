@@ -111,6 +111,36 @@ def test_deleted_artifact_is_recomputed_not_trusted(tmp_path):
     assert all(r.state == "done" for r in status(cfg))
 
 
+def test_a_moved_work_dir_is_served_from_its_cache_and_records_its_new_place(tmp_path):
+    import shutil
+
+    from tasks.artifacts import recorded_folder
+
+    assert _run(tmp_path / "cluster", *SMALL) == 0
+    done = executions(tmp_path / "cluster")
+    shutil.move(tmp_path / "cluster", tmp_path / "laptop")  # the old place is gone: nothing may be read from it
+    workdir = tmp_path / "laptop"
+    assert _run(workdir, *SMALL) == 0
+    assert executions(workdir) == done, "a moved work dir recomputed finished units"
+    cfg = load_config("smoke", sets=SMALL, workdir=workdir)
+    assert all(r.state == "done" for r in status(cfg))
+    units = [p for stage in (workdir / "stages").iterdir() for p in stage.iterdir() if read_manifest(p) is not None]
+    assert units and all(recorded_folder(p) == str(p) for p in units)  # manifests now name the new folders
+    # MLflow: every run, the first invocation's too, keeps its artifacts under the moved work dir
+    from mlflow.tracking import MlflowClient
+
+    from tasks.tracking import artifact_root, default_tracking_uri
+
+    client = MlflowClient(default_tracking_uri(workdir))
+    experiment = client.get_experiment_by_name(cfg.tracking.experiment)
+    assert experiment.artifact_location == artifact_root(workdir)
+    runs = client.search_runs([experiment.experiment_id])
+    assert len(runs) >= 4 and all(r.info.artifact_uri.startswith(artifact_root(workdir) + "/") for r in runs)
+    first = min((r for r in runs if r.data.tags.get("stage") == "scenes"), key=lambda r: r.info.start_time)
+    assert client.list_artifacts(first.info.run_id), "the first run's artifacts are not found after the move"
+    assert not (tmp_path / "cluster").exists()
+
+
 def test_status_lists_missing_then_done(tmp_path, capsys):
     cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
     states = {r.name: r.state for r in status(cfg)}
