@@ -30,7 +30,11 @@ def find_bins(folder: Path) -> dict[str, tuple[list[dict], list[dict]]]:
     index = folder / "index.json"
     if index.is_file():
         for label, entry in json.loads(index.read_text()).items():
-            unit = Path(rebase_entry(entry, folder.parent)["folder"])  # the bins beside the index, wherever it is now
+            # the bins are the index's siblings in a stage folder, wherever it is now; else inside the index's folder
+            # (a copied layout), else where the index recorded them
+            candidates = (Path(rebase_entry(entry, folder.parent)["folder"]), folder / Path(entry["folder"]).name,
+                          Path(entry["folder"]))
+            unit = next((path for path in candidates if path.is_dir()), candidates[0])
             validations = unit / "validations.json"
             out[label] = (json.loads((unit / "history.json").read_text()),
                           json.loads(validations.read_text())["rows"] if validations.is_file() else [])
