@@ -10,7 +10,7 @@ bin (``specialists.ppo`` and ``specialists.init_policy`` of the config, ``lift``
 workers as the bench profile) and lifts the same fixed subset of the records, every ``--eval-stride``-th, with
 the deterministic policy before training (the untrained actor: ``init_policy``'s mean action) and after, one
 seeded trial each (:func:`components.execution.evaluation.evaluate_lift`, the protocol of ``evaluate execution``).  The hand
-URDF is the ``hand.urdf`` beside the records (a specialists unit folder has both).  ``--checkpoint`` keeps the
+URDF is exported for the configured hand into the work dir's cache (as the evaluation does).  ``--checkpoint`` keeps the
 PPO checkpoint there, so a rerun resumes; by default it lives in a temporary folder.
 
 The JSON has the setting (config overrides, PPO config, records), ``before`` / ``after`` (wins, poses), the
@@ -48,17 +48,20 @@ def run(cfg, records: Path, encoder: Path, iterations: int, stride: int, checkpo
     from components.execution.factory import LiftEnvFactory
     from components.execution.ppo import build_actor_critic, train_ppo
     from components.hand import HandModel
+    from components.hand.model import URDF_FILE_NAME
     from tasks.preflight import cache_dir
     from tasks.specialists import initial_action
 
-    urdf = records.parent / "hand.urdf"
-    for path, what in ((records, "--records"), (encoder, "--encoder"), (urdf, "hand.urdf beside --records")):
+    for path, what in ((records, "--records"), (encoder, "--encoder")):
         if not path.is_file():
-            raise MultigraspError(f"{what}: {path} not found (a specialists unit folder has records.json and hand.urdf; "
+            raise MultigraspError(f"{what}: {path} not found (a specialists unit folder has records.json; "
                                   "the pointnet stage writes encoder.pt)")
     stage = cfg.specialists
     ppo = stage.ppo.model_copy(update={"iterations": iterations})
-    init = initial_action(stage, HandModel(cfg.hand).actuated_joint_names)
+    hand = HandModel(cfg.hand)
+    # this installation's URDF (the copy in a unit folder names the mesh files of the installation that trained it)
+    urdf = hand.export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
+    init = initial_action(stage, hand.actuated_joint_names)
     factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
                              objects_cache=str(cache_dir(cfg.run.workdir)), urdf=str(urdf), records=str(records),
                              lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(encoder), seed=ppo.seed)
@@ -90,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     from flows.config import load_config
 
     parser = argparse.ArgumentParser(prog="python -m benchmarks.ppo_experiment", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--records", type=Path, required=True, help="records.json of a specialists unit (hand.urdf beside it)")
+    parser.add_argument("--records", type=Path, required=True, help="records.json of a specialists unit")
     parser.add_argument("--encoder", type=Path, required=True, help="encoder.pt of the pointnet stage")
     parser.add_argument("--profile", default="bench", help="profile for specialists / lift / hand / objects (default bench)")
     parser.add_argument("--workdir", type=Path, help="work dir whose object cache is used (default: the profile's)")

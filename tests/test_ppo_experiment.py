@@ -24,7 +24,6 @@ def test_trains_and_counts_deterministic_successes_before_and_after(hand, librar
     scene = Scene(objects=(Placement("sphere", (0.0, 0.0, 0.025), IDENTITY),))
     p, R, q = preview_hand_pose(hand, scene, CameraConfig(), library)
     records = save_records(unit / "records.json", [GraspRecord(scene, p, R, q.astype(float))] * 2)
-    hand.export_urdf(unit / "hand.urdf")
     cfg = PointNetConfig()
     save_encoder(tmp_path / "encoder.pt", PointNetEncoder(cfg), cfg)
     out = tmp_path / "ppo.json"
