@@ -2,7 +2,6 @@
 
 import json
 import os
-
 import shutil
 
 from tasks.artifacts import (atomic_write_json, atomic_write_text, code_version, read_manifest, recorded_folder,

@@ -47,6 +47,15 @@ def _rerun_argv(workdir, *sets: str) -> list[str]:
     return argv
 
 
+def _evaluate_argv(workdir, config, *sets: str, ablations: bool = False) -> list[str]:
+    """``multigrasp evaluate execution`` on ``workdir`` with the fixture's settings and more ``--set``s."""
+    argv = ["evaluate", "execution", *(["--ablations"] if ablations else []), "--profile", "smoke",
+            "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY, *sets]:
+        argv += ["--set", item]
+    return argv
+
+
 def _final(workdir, stage):
     manifests = [m for m in map(read_manifest, (workdir / "stages" / stage).iterdir()) if m is not None]
     return max((m for m in manifests if m.unit in ("merge", "stage")), key=lambda m: m.created_unix)
@@ -134,10 +143,8 @@ def test_mlflow_has_the_learning_curves(runs):
 def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     workdir, _, _ = runs
     config = next((workdir.parent).glob("exec-config*/stage.yaml"))
-    argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=2",
-                 "specialists.eval_progress_every=1"]:
-        argv += ["--set", item]
+    argv = _evaluate_argv(workdir, config, "specialists.eval_poses=1", "specialists.eval_trials=2",
+                          "specialists.eval_progress_every=1")
     assert main(argv) == 0
     rows = json.loads((workdir / "results" / "execution.json").read_text())["rows"]
     assert [r["setting"] for r in rows] == ["Syn-Pl", "Syn-Com", "Syn-Geo"]
@@ -204,10 +211,8 @@ def test_evaluate_execution_after_the_reach_lifts_from_the_end_of_reach_states(r
     # singles instead, each with the first specialist
     monkeypatch.setattr(ev, "EVALUATED_OBJECTS", 1)
     monkeypatch.setattr(ev, "matching_specialist", lambda label, index: next(iter(index)))
-    argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=3", "specialists.eval_trials=1",
-                 "specialists.eval_after_reach=true", "specialists.gifs_per_outcome=0"]:
-        argv += ["--set", item]
+    argv = _evaluate_argv(workdir, config, "specialists.eval_poses=3", "specialists.eval_trials=1",
+                          "specialists.eval_after_reach=true", "specialists.gifs_per_outcome=0")
     assert main(argv) == 0
     rows = json.loads((workdir / "results" / "execution.json").read_text())["rows"]
     assert all(r["after_reach"] for r in rows)
@@ -252,10 +257,8 @@ def test_a_moved_work_dir_keeps_its_specialists_and_evaluates_them_from_where_it
         monkeypatch.setattr(ev, "EVALUATED_OBJECTS", 1)  # single-object specialists at this size (test above)
         monkeypatch.setattr(ev, "matching_specialist", lambda label, index: next(iter(index)))
         config = next((parked.parent).glob("exec-config*/stage.yaml"))
-        argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(moved), "--config", str(config)]
-        for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=2", "specialists.eval_trials=1",
-                     "specialists.gifs_per_outcome=0"]:
-            argv += ["--set", item]
+        argv = _evaluate_argv(moved, config, "specialists.eval_poses=2", "specialists.eval_trials=1",
+                              "specialists.gifs_per_outcome=0")
         assert main(argv) == 0
         rows = json.loads((moved / "results" / "execution.json").read_text())["rows"]
         assert sum(r["n_poses"] for r in rows) >= 1 and policies and urdfs
@@ -361,10 +364,8 @@ def test_evaluate_execution_with_ablations_trains_and_evaluates_the_variants(run
     monkeypatch.setattr(ev, "ABLATIONS", {"w/o Goal": {"lift.goal_observations": False}})
     workdir, _, _ = runs
     config = next((workdir.parent).glob("exec-config*/stage.yaml"))
-    argv = ["evaluate", "execution", "--ablations", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
-    for item in [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=1",
-                 "specialists.gifs_per_outcome=0"]:
-        argv += ["--set", item]
+    argv = _evaluate_argv(workdir, config, "specialists.eval_poses=1", "specialists.eval_trials=1",
+                          "specialists.gifs_per_outcome=0", ablations=True)
     before = len(executions(workdir))
     assert main(argv) == 0  # this small config has no Pl scenes: the rows have 0 poses, the training still runs
     ablation = json.loads((workdir / "results" / "ablation_execution.json").read_text())["rows"]
