@@ -56,11 +56,17 @@ def _config_args(parser: argparse.ArgumentParser) -> None:
     group.add_argument("-v", "--verbose", action="store_true", help="log cache decisions and Prefect messages")
 
 
-def _load(args: argparse.Namespace):
+def _load(args: argparse.Namespace, needs_device: bool = True):
+    """The config of the command's options; with ``needs_device``, first a one-line error where the device it names
+    (``--device``, or ``run.device`` from the profile / file / ``--set``) cannot be used here, before any stage runs."""
+    from components.device import require_device
     from flows.config import load_config
 
-    return load_config(args.profile, args.config, args.sets, workdir=args.workdir, device=args.device,
-                       runner=args.runner, max_workers=args.max_workers)
+    cfg = load_config(args.profile, args.config, args.sets, workdir=args.workdir, device=args.device,
+                      runner=args.runner, max_workers=args.max_workers)
+    if needs_device:
+        require_device(cfg.run.device, "--device" if args.device else f"run.device of profile {cfg.profile!r} (or --config / --set)")
+    return cfg
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -189,7 +195,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
     from flows.pipeline import status
 
-    cfg = _load(args)
+    cfg = _load(args, needs_device=False)  # status reads files only: a cluster's work dir, checked on a laptop
     table = Table(title=f"multigrasp status — profile {cfg.profile}, workdir {cfg.run.workdir}")
     for col in ("stage", "state", "units", "output", "note"):
         table.add_column(col)
@@ -232,10 +238,13 @@ def _cmd_ui(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     import json
 
+    from components.device import require_device
+
     if (args.sets or args.profile) and args.name != "generation":
         raise MultigraspError(f"--set / --profile apply to `bench generation` only (got them with `bench {args.name}`) "
                               "— drop them")
 
+    require_device(args.device)
     if args.name == "synthesis":
         from benchmarks.synthesis import run_synthesis_benchmark
 
