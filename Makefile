@@ -25,10 +25,15 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# the smoke pipeline, then its three evaluations (the tables beside the paper's, in $(WORKDIR)/results/)
 demo: install
 	$(BIN)/multigrasp run --profile smoke --workdir $(WORKDIR)
+	$(BIN)/multigrasp evaluate pregrasp --source synthetic --profile smoke --workdir $(WORKDIR)
+	$(BIN)/multigrasp evaluate pregrasp --source generated --profile smoke --workdir $(WORKDIR)
+	$(BIN)/multigrasp evaluate execution --profile smoke --workdir $(WORKDIR)
 	@echo ""
-	@echo "Results are in $(WORKDIR)/ (stages/, results/); status: $(BIN)/multigrasp status --workdir $(WORKDIR)"
+	@echo "Stage outputs: $(WORKDIR)/stages/; tables: $(WORKDIR)/results/*.md (JSON beside them)"
+	@echo "Status: $(BIN)/multigrasp status --workdir $(WORKDIR)"
 	@echo "Open the MLflow UI:  $(BIN)/multigrasp ui --workdir $(WORKDIR)   then browse http://127.0.0.1:5000"
 
 test: install
