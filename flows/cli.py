@@ -35,6 +35,20 @@ from components.errors import MultigraspError
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 DEFAULT_UI_PORT = 5000
+UI_HOST = "127.0.0.1"
+
+
+def port_is_free(host: str, port: int) -> bool:
+    """Whether a server could listen on ``host:port`` now (``multigrasp ui`` checks before it starts MLflow, whose
+    server otherwise logs 'Address already in use' and exits 0)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        try:
+            sock.bind((host, port))
+        except OSError:
+            return False
+    return True
 
 
 def _config_args(parser: argparse.ArgumentParser) -> None:
@@ -223,12 +237,17 @@ def _cmd_ui(args: argparse.Namespace) -> int:
     workdir = args.workdir.resolve()
     if not os.environ.get("MLFLOW_TRACKING_URI") and not (workdir / "mlflow.db").exists():
         raise MultigraspError(f"no MLflow store in {workdir} — run `multigrasp run` first or pass --workdir")
+    if not 0 < args.port < 65536:
+        raise MultigraspError(f"--port must be between 1 and 65535 (got {args.port})")
+    if not port_is_free(UI_HOST, args.port):
+        raise MultigraspError(f"port {args.port} on {UI_HOST} is in use (another `multigrasp ui` or MLflow server?) — "
+                              f"open that one, stop it, or pass --port {args.port + 1}")
     old = relocate_embedded_store(workdir)  # a copied work dir shows its own PNGs, not the old place's
     if old:
         print(f"artifact locations of {workdir / 'mlflow.db'} moved from {old} to {artifact_root(workdir)}", flush=True)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", default_tracking_uri(workdir),
-           "--default-artifact-root", artifact_root(workdir), "--host", "127.0.0.1", "--port", str(args.port)]
-    print(f"MLflow UI on http://127.0.0.1:{args.port} (Ctrl-C to stop)", flush=True)
+           "--default-artifact-root", artifact_root(workdir), "--host", UI_HOST, "--port", str(args.port)]
+    print(f"MLflow UI on http://{UI_HOST}:{args.port} (Ctrl-C to stop)", flush=True)
     try:
         return subprocess.call(cmd)
     except KeyboardInterrupt:

@@ -250,6 +250,23 @@ def test_ui_without_a_store_says_what_to_run(tmp_path, capsys):
     assert "run `multigrasp run` first" in capsys.readouterr().err
 
 
+def test_ui_on_a_port_in_use_says_so_and_names_a_free_one(tmp_path, capsys):
+    """MLflow's server logged 'Address already in use' and exited 0; the CLI now checks the port first."""
+    import socket
+
+    (tmp_path / "mlflow.db").touch()
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["ui", "--workdir", str(tmp_path), "--port", str(port)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"error: port {port} on 127.0.0.1 is in use (another `multigrasp ui` or MLflow server?) — open that "
+                   f"one, stop it, or pass --port {port + 1}")
+    assert main(["ui", "--workdir", str(tmp_path), "--port", "70000"]) == 2
+    assert "--port must be between 1 and 65535" in capsys.readouterr().err
+
+
 def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_records_kept():
     """The in-process server's 'Error flushing events' at interpreter exit (a CancelledError) printed a traceback
     after a finished run; the handler filter drops it, and drops MultigraspError tracebacks, nothing else."""
