@@ -70,6 +70,11 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
         raise MultigraspError("no trained generator for this config — run `multigrasp run --until train-generator` "
                               "first (same --profile / --config / --set)")
     stage = cfg.generator
+    if len(scene.objects) > stage.model.max_objects:
+        raise MultigraspError(
+            f"the generator of this config takes at most {stage.model.max_objects} objects per scene "
+            f"(generator.model.max_objects) and the scene has {len(scene.objects)} ({'+'.join(scene.names)}); ask for "
+            f"at most {stage.model.max_objects}, or train a generator with a larger generator.model.max_objects")
     hand = HandModel(cfg.hand)
     model = load_generator(manifest.path("generator"))
     positions = np.array([pl.position for pl in scene.objects])

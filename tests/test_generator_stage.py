@@ -87,6 +87,14 @@ def test_generate_with_an_unknown_object_is_a_one_line_error(trained, capsys):
     assert "banana" in err and "Traceback" not in err
 
 
+def test_generate_for_more_objects_than_the_generator_takes_names_its_limit(trained, capsys):
+    _, base, _, _ = trained
+    assert main(["generate", "--objects", "cube,cylinder,sphere,bar", "--n", "1", *base]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: the generator of this config takes at most 3 objects per scene "
+                          "(generator.model.max_objects) and the scene has 4 (cube+cylinder+sphere+bar)")
+
+
 def test_bench_generation_reports_its_timings():
     from benchmarks.generation import run_generation_benchmark
 
