@@ -152,7 +152,7 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
     records.mkdir(parents=True, exist_ok=True)
     updates = {PREFECT_LOCAL_STORAGE_PATH: str(records), PREFECT_RESULTS_PERSIST_BY_DEFAULT: True}
     with contextlib.ExitStack() as stack:
-        if cfg.run.runner == "processes" and not os.environ.get("PREFECT_API_URL"):
+        if needs_run_server(cfg.run) and not os.environ.get("PREFECT_API_URL"):
             url = stack.enter_context(local_prefect_server(workdir))
             updates[PREFECT_API_URL] = url
             # process workers read the environment, not this process's settings context
@@ -167,7 +167,45 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
         stack.enter_context(temporary_settings(updates=updates))
         if PREFECT_API_URL in updates:  # this run started its own server
             stack.callback(_drain_prefect_workers)  # unwound first, while the server and its settings are in place
+        if cfg.run.runner == "ray":
+            stack.enter_context(ray_session(cfg.run, records))
         yield
+
+
+def needs_run_server(run: RunConfig) -> bool:
+    """Whether the invocation starts one local Prefect server for its workers: process workers, and the workers of
+    a local Ray (each would otherwise start a temporary server of its own).  A Ray cluster (``run.ray_address``)
+    cannot reach a server on this machine's 127.0.0.1: give it one through ``PREFECT_API_URL``."""
+    return run.runner == "processes" or (run.runner == "ray" and not run.ray_address)
+
+
+#: the Prefect settings a Ray worker needs from the driver (read from the environment when present)
+RAY_WORKER_ENV = ("PREFECT_API_URL", "PREFECT_LOGGING_TO_API_ENABLED", "PREFECT_RESULTS_PERSIST_BY_DEFAULT")
+
+
+@contextlib.contextmanager
+def ray_session(run: RunConfig, records: Path) -> Iterator[None]:
+    """One Ray instance for the whole invocation (local, or ``run.ray_address``).  prefect-ray's runner starts and
+    shuts down a Ray of its own per flow when none is running, so a pipeline of several stages paid Ray's start
+    (and its workers' imports) once per stage; with this session every stage's runner finds Ray initialised and
+    reuses it and its warm workers.  The workers get this run's Prefect settings (``RAY_WORKER_ENV`` and the
+    results folder) through the runtime environment, so a worker on another node reports to the same server."""
+    try:
+        import ray
+    except ImportError:
+        raise MultigraspError("run.runner=ray needs prefect-ray: pip install 'multigrasp[ray]' (or use "
+                              "threads/processes)") from None
+    if ray.is_initialized():  # the caller's own Ray (a notebook, a test): use it, leave it running
+        yield
+        return
+    env = {name: os.environ[name] for name in RAY_WORKER_ENV if name in os.environ}
+    env["PREFECT_LOCAL_STORAGE_PATH"] = str(records)
+    local = {} if run.ray_address else {"include_dashboard": False}  # options only a new local Ray takes
+    ray.init(address=run.ray_address, namespace="prefect", runtime_env={"env_vars": env}, **local)
+    try:
+        yield
+    finally:
+        ray.shutdown()
 
 
 @contextlib.contextmanager
