@@ -83,6 +83,19 @@ def _load(args: argparse.Namespace, needs_device: bool = True):
     return cfg
 
 
+class VersionAction(argparse.Action):
+    """``--version``: :func:`tasks.tracking.version_line` (the same provenance every MLflow run is tagged with)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from tasks.tracking import version_line
+
+        print(version_line())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="multigrasp",
@@ -90,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "Prefect task tracked in MLflow; re-running a command resumes where it stopped.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Start with `multigrasp run --profile smoke`, then `multigrasp ui`.")
+    parser.add_argument("--version", action=VersionAction,
+                        help="print the package version, its git commit, torch and Python, and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser("run", help="run the pipeline (every stage, or up to --until); cached stages are reused",

@@ -24,6 +24,58 @@ log = logging.getLogger("multigrasp")
 MAX_PARAM_CHARS = 6000
 
 
+#: git calls of :func:`provenance_tags` give up after this long (a network file system, a huge tree)
+GIT_TIMEOUT_S = 10.0
+
+
+def _git(repo: Path, *args: str) -> str | None:
+    import subprocess
+
+    try:
+        out = subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=GIT_TIMEOUT_S)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def provenance_tags(repo: Path | None = None) -> dict[str, str]:
+    """What produced a run, as MLflow tags of every top-level run (an invocation, an evaluation): the package
+    version, the git commit of the checkout it runs from (``mlflow.source.git.commit``, shown by the MLflow UI) and
+    whether that checkout had uncommitted changes to tracked files, torch and Python.  An installation outside a
+    git checkout gets no git tags."""
+    import platform
+    from importlib import metadata
+
+    import torch
+
+    from tasks.artifacts import REPO_ROOT
+
+    repo = REPO_ROOT if repo is None else repo
+    try:
+        version = metadata.version("multigrasp")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    tags = {"multigrasp.version": version, "multigrasp.torch": torch.__version__,
+            "multigrasp.python": platform.python_version()}
+    commit = _git(repo, "rev-parse", "HEAD") if (repo / ".git").exists() else None
+    if commit:
+        tags["mlflow.source.git.commit"] = commit
+        changes = _git(repo, "status", "--porcelain", "--untracked-files=no")
+        if changes is not None:
+            tags["multigrasp.git_dirty"] = str(bool(changes)).lower()
+    return tags
+
+
+def version_line(repo: Path | None = None) -> str:
+    """``multigrasp --version``: the package, its checkout's commit, torch and Python, from :func:`provenance_tags`."""
+    tags = provenance_tags(repo)
+    git = ""
+    if "mlflow.source.git.commit" in tags:
+        dirty = ", uncommitted changes" if tags.get("multigrasp.git_dirty") == "true" else ""
+        git = f" (git {tags['mlflow.source.git.commit'][:12]}{dirty})"
+    return f"multigrasp {tags['multigrasp.version']}{git}, torch {tags['multigrasp.torch']}, Python {tags['multigrasp.python']}"
+
+
 def default_tracking_uri(workdir: Path) -> str:
     """``MLFLOW_TRACKING_URI`` if set, else the embedded sqlite store of the work dir."""
     return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{Path(workdir).resolve() / 'mlflow.db'}"
@@ -98,6 +150,7 @@ class Tracker:
         from mlflow.tracking import MlflowClient
 
         self.tracking_uri = tracking_uri
+        self._provenance: dict[str, str] | None = None  # provenance_tags(), read at the first top-level run
         if tracking_uri == default_tracking_uri(workdir):
             relocate_embedded_store(workdir)  # a moved or copied work dir logs its artifacts where it is now
         self.client = MlflowClient(tracking_uri)
@@ -114,6 +167,10 @@ class Tracker:
         all_tags = dict(tags or {})
         if parent_id:
             all_tags["mlflow.parentRunId"] = parent_id
+        else:  # a top-level run records what produced it; its stage runs are its children
+            if self._provenance is None:
+                self._provenance = provenance_tags()
+            all_tags = {**self._provenance, **all_tags}
         run = self.client.create_run(self.experiment_id, run_name=name, tags=all_tags)
         return run.info.run_id
 

@@ -68,6 +68,11 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == first_parent.info.run_id]
     assert sorted(r.data.tags["stage"] for r in children) == sorted(stage_names())
     assert first_parent.data.params["profile"] == "smoke"
+    from tasks.tracking import provenance_tags
+
+    expected = provenance_tags()  # the package version, torch, Python, and the checkout's commit where there is one
+    assert all(first_parent.data.tags[k] == v for k, v in expected.items() if k != "multigrasp.git_dirty")
+    assert not any(k.startswith("multigrasp.") for c in children for k in c.data.tags)  # on the parent only
     scenes_run = next(r for r in children if r.data.tags["stage"] == "scenes")
     pngs = [a.path for a in client.list_artifacts(scenes_run.info.run_id, "renders")]
     assert pngs and all(p.endswith(".png") for p in pngs)

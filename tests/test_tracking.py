@@ -38,3 +38,33 @@ def test_a_store_named_by_the_environment_is_never_rewritten(tmp_path, monkeypat
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:///" + str(tmp_path / "b" / "mlflow.db"))
     assert relocate_embedded_store(tmp_path / "b") is None
     assert relocate_embedded_store(tmp_path / "missing") is None
+
+
+def test_provenance_names_the_commit_and_uncommitted_changes_of_a_checkout(tmp_path, capsys):
+    import subprocess
+
+    from flows.cli import main
+    from tasks.tracking import provenance_tags, version_line
+
+    outside = provenance_tags(tmp_path)  # an installation outside a git checkout: no git tags
+    assert "mlflow.source.git.commit" not in outside and outside["multigrasp.torch"]
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "a.txt").write_text("1")
+    subprocess.run([*git, "add", "a.txt"], check=True)
+    subprocess.run([*git, "commit", "-qm", "c"], check=True)
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    clean = provenance_tags(tmp_path)
+    assert clean["mlflow.source.git.commit"] == head and clean["multigrasp.git_dirty"] == "false"
+    (tmp_path / "new.txt").write_text("untracked files do not count")
+    assert provenance_tags(tmp_path)["multigrasp.git_dirty"] == "false"
+    (tmp_path / "a.txt").write_text("2")
+    assert provenance_tags(tmp_path)["multigrasp.git_dirty"] == "true"
+    assert version_line(tmp_path).startswith(f"multigrasp {clean['multigrasp.version']} (git {head[:12]}, "
+                                             "uncommitted changes), torch ")
+    import pytest
+
+    with pytest.raises(SystemExit) as exited:
+        main(["--version"])
+    assert exited.value.code == 0
+    assert capsys.readouterr().out.startswith("multigrasp ")
