@@ -26,6 +26,8 @@ MAX_PARAM_CHARS = 6000
 
 #: git calls of :func:`provenance_tags` give up after this long (a network file system, a huge tree)
 GIT_TIMEOUT_S = 10.0
+#: the commit of an installation outside a git checkout, where its builder recorded one (docker/Dockerfile)
+GIT_COMMIT_ENV = "MULTIGRASP_GIT_COMMIT"
 
 
 def _git(repo: Path, *args: str) -> str | None:
@@ -42,7 +44,8 @@ def provenance_tags(repo: Path | None = None) -> dict[str, str]:
     """What produced a run, as MLflow tags of every top-level run (an invocation, an evaluation): the package
     version, the git commit of the checkout it runs from (``mlflow.source.git.commit``, shown by the MLflow UI) and
     whether that checkout had uncommitted changes to tracked files, torch and Python.  An installation outside a
-    git checkout gets no git tags."""
+    git checkout gets the commit of ``$MULTIGRASP_GIT_COMMIT`` if its builder set it (the docker image), else no git
+    tags."""
     import platform
     from importlib import metadata
 
@@ -63,6 +66,8 @@ def provenance_tags(repo: Path | None = None) -> dict[str, str]:
         changes = _git(repo, "status", "--porcelain", "--untracked-files=no")
         if changes is not None:
             tags["multigrasp.git_dirty"] = str(bool(changes)).lower()
+    elif os.environ.get(GIT_COMMIT_ENV):  # an image built without .git (docker/Dockerfile's GIT_COMMIT build arg)
+        tags["mlflow.source.git.commit"] = os.environ[GIT_COMMIT_ENV]
     return tags
 
 

@@ -40,14 +40,17 @@ def test_a_store_named_by_the_environment_is_never_rewritten(tmp_path, monkeypat
     assert relocate_embedded_store(tmp_path / "missing") is None
 
 
-def test_provenance_names_the_commit_and_uncommitted_changes_of_a_checkout(tmp_path, capsys):
+def test_provenance_names_the_commit_and_uncommitted_changes_of_a_checkout(tmp_path, capsys, monkeypatch):
     import subprocess
 
     from flows.cli import main
     from tasks.tracking import provenance_tags, version_line
 
+    monkeypatch.delenv("MULTIGRASP_GIT_COMMIT", raising=False)
     outside = provenance_tags(tmp_path)  # an installation outside a git checkout: no git tags
     assert "mlflow.source.git.commit" not in outside and outside["multigrasp.torch"]
+    monkeypatch.setenv("MULTIGRASP_GIT_COMMIT", "abc123")  # unless its builder recorded the commit (docker image)
+    assert provenance_tags(tmp_path)["mlflow.source.git.commit"] == "abc123"
     git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
     subprocess.run([*git, "init", "-q"], check=True)
     (tmp_path / "a.txt").write_text("1")
