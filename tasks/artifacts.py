@@ -9,6 +9,7 @@ Layout of a work directory (default ``./runs``)::
       cache/                       component caches (mesh SDF grids, convex decompositions, URDF)
       prefect/results/             Prefect result records (one small manifest per cache key)
       results/                     human-facing reports (JSON + markdown tables)
+      locks/                       one lock file per unit being computed (two invocations compute a unit once)
       mlflow.db, mlartifacts/      the embedded MLflow store
 
 A unit's cache key is ``sha256(stage, config-section digest, upstream manifest hashes,
@@ -19,11 +20,14 @@ manifest) makes the unit count as not done, so it is recomputed instead of trust
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import sys
 import tempfile
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +39,41 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 """The project root (holds ``components/``, ``assets/``); used for code versions."""
 
 MANIFEST_NAME = "manifest.json"
+
+
+LOCKS_DIR = "locks"
+
+
+def lock_path(workdir: Path, name: str) -> Path:
+    """``<workdir>/locks/<name>.lock``: the lock file of one unit (its key) or of the work dir's MLflow store."""
+    return Path(workdir) / LOCKS_DIR / f"{name}.lock"
+
+
+@contextlib.contextmanager
+def file_lock(path: Path, on_wait: Callable[[str], None] | None = None) -> Iterator[None]:
+    """An exclusive advisory lock (``flock``) on ``path`` across processes, for the ``with`` block.
+
+    Two invocations on one work dir (a second terminal, two configs run side by side) use it so that a unit is
+    computed once: the second waits for the first and then finds the unit finished.  ``on_wait(holder)`` is called
+    once if the lock is held elsewhere (``holder``: what the holder wrote, its pid and command line), before
+    blocking.  The kernel releases the lock when its process ends, ``kill -9`` included, so no stale lock is left."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if on_wait is not None:
+                handle.seek(0)
+                on_wait(handle.read().strip() or "another process")
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            handle.seek(0)
+            handle.truncate()
+            handle.write(f"pid {os.getpid()} ({' '.join(sys.argv)[:200]})")
+            handle.flush()
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 # --------------------------------------------------------------------------- hashing

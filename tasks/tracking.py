@@ -19,6 +19,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from tasks.artifacts import file_lock, lock_path
+
 log = logging.getLogger("multigrasp")
 
 MAX_PARAM_CHARS = 6000
@@ -156,15 +158,18 @@ class Tracker:
 
         self.tracking_uri = tracking_uri
         self._provenance: dict[str, str] | None = None  # provenance_tags(), read at the first top-level run
-        if tracking_uri == default_tracking_uri(workdir):
-            relocate_embedded_store(workdir)  # a moved or copied work dir logs its artifacts where it is now
-        self.client = MlflowClient(tracking_uri)
-        found = self.client.get_experiment_by_name(experiment)
-        if found is None:
-            location = artifact_root(workdir) if tracking_uri.startswith("sqlite:") else None
-            self.experiment_id = self.client.create_experiment(experiment, artifact_location=location)
-        else:
-            self.experiment_id = found.experiment_id
+        # one invocation at a time creates (and migrates) the store and the experiment: two started together on a
+        # new work dir raced in MLflow's schema migration ("duplicate column name: step") and the second crashed
+        with file_lock(lock_path(workdir, "mlflow")):
+            if tracking_uri == default_tracking_uri(workdir):
+                relocate_embedded_store(workdir)  # a moved or copied work dir logs its artifacts where it is now
+            self.client = MlflowClient(tracking_uri)
+            found = self.client.get_experiment_by_name(experiment)
+            if found is None:
+                location = artifact_root(workdir) if tracking_uri.startswith("sqlite:") else None
+                self.experiment_id = self.client.create_experiment(experiment, artifact_location=location)
+            else:
+                self.experiment_id = found.experiment_id
 
     # ------------------------------------------------------------------ runs
     def start_run(self, name: str, parent_id: str | None = None, tags: Mapping[str, str] | None = None) -> str:

@@ -23,8 +23,8 @@ from typing import Any
 
 from prefect.cache_policies import CachePolicy
 
-from tasks.artifacts import (MANIFEST_NAME, Manifest, atomic_write_text, recorded_folder, unit_folder, unit_key,
-                             valid_manifest, write_manifest)
+from tasks.artifacts import (MANIFEST_NAME, Manifest, atomic_write_text, file_lock, lock_path, recorded_folder,
+                             unit_folder, unit_key, valid_manifest, write_manifest)
 
 log = logging.getLogger("multigrasp")
 
@@ -131,7 +131,9 @@ def run_unit(spec: UnitSpec, body: Callable[[Path], UnitOutput]) -> Manifest:
     """Run a unit body into its folder and write its manifest; reuse a valid one on disk.
 
     If the Prefect record was lost but the folder already holds a verified manifest for the
-    same key (e.g. the records folder was deleted), the work is not redone.
+    same key (e.g. the records folder was deleted), the work is not redone.  The body runs under the unit's lock
+    (:func:`tasks.artifacts.file_lock`): another invocation on the same work dir that reaches the same unit waits
+    for it and then serves its outputs, instead of computing it a second time into the same folder.
     """
     existing = valid_manifest(spec.folder)
     if existing is not None:
@@ -139,11 +141,19 @@ def run_unit(spec: UnitSpec, body: Callable[[Path], UnitOutput]) -> Manifest:
         if moved(spec):  # record the folder the files are in now (read_manifest already serves them from here)
             atomic_write_text(spec.folder / MANIFEST_NAME, existing.model_dump_json(indent=2) + "\n")
         return existing
-    spec.folder.mkdir(parents=True, exist_ok=True)
-    record_execution(spec)
-    start = time.perf_counter()
-    out = body(spec.folder)
-    return write_manifest(stage=spec.stage, unit=spec.unit, key=spec.key, folder=spec.folder,
-                          files=out.files, code=spec.code, metrics=out.metrics, meta=out.meta,
-                          upstream=spec.upstream, producer_run_id=spec.run_id,
-                          seconds=time.perf_counter() - start)
+    def waiting(holder: str) -> None:
+        log.warning("%s: another invocation on this work dir is computing it (%s); waiting for it", spec.label, holder)
+
+    with file_lock(lock_path(Path(spec.workdir), spec.key), on_wait=waiting):
+        finished = valid_manifest(spec.folder)  # by the invocation we waited for
+        if finished is not None:
+            log.warning("%s: finished by the other invocation; using its outputs", spec.label)
+            return finished
+        spec.folder.mkdir(parents=True, exist_ok=True)
+        record_execution(spec)
+        start = time.perf_counter()
+        out = body(spec.folder)
+        return write_manifest(stage=spec.stage, unit=spec.unit, key=spec.key, folder=spec.folder,
+                              files=out.files, code=spec.code, metrics=out.metrics, meta=out.meta,
+                              upstream=spec.upstream, producer_run_id=spec.run_id,
+                              seconds=time.perf_counter() - start)

@@ -82,3 +82,34 @@ def test_code_version_changes_when_a_source_file_changes(tmp_path):
     before = code_version("components/thing", root=tmp_path)
     (pkg / "a.py").write_text("x = 2\n")
     assert code_version("components/thing", root=tmp_path) != before
+
+
+def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    from tasks.artifacts import file_lock
+
+    path = tmp_path / "locks" / "unit.lock"
+    ready = tmp_path / "ready"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import pathlib, time\n"
+        "from tasks.artifacts import file_lock\n"
+        f"with file_lock(pathlib.Path({str(path)!r})):\n"
+        f"    pathlib.Path({str(ready)!r}).touch()\n"
+        "    time.sleep(1.5)\n")])
+    try:
+        while not ready.exists():
+            assert holder.poll() is None
+            time.sleep(0.05)
+        waited, start = [], time.monotonic()
+        with file_lock(path, on_wait=waited.append):
+            assert time.monotonic() - start > 0.5  # it blocked until the holder's block ended
+        assert len(waited) == 1 and waited[0].startswith(f"pid {holder.pid} (")
+    finally:
+        holder.wait(timeout=30)
+    calls = []
+    with file_lock(path, on_wait=calls.append):  # free: no wait
+        pass
+    assert calls == []

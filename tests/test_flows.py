@@ -84,6 +84,25 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     assert all(r.data.tags["cached_from_run"] in {c.info.run_id for c in children} for r in cached)
 
 
+def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_once(tmp_path):
+    """A second terminal running the same command: the second crashed in MLflow's schema migration of the new
+    store ("duplicate column name"), and both would have computed every unit.  Now the store is created under a
+    lock, each unit under its own, and the two share the work."""
+    import subprocess
+    import sys
+
+    workdir = tmp_path / "runs"
+    argv = [sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir", str(workdir)]
+    for item in SMALL:
+        argv += ["--set", item]
+    procs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    outputs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs
+    done = executions(workdir)
+    assert done and len(done) == len(set(done))  # no unit computed twice
+    assert "Traceback" not in "".join(outputs)
+
+
 def test_resume_after_downstream_failure_reuses_upstream_units(tmp_path, monkeypatch):
     real = tasks.scenes.merge_and_render
 
