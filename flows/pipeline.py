@@ -19,7 +19,7 @@ from components.errors import MultigraspError
 from flows import pointnet, reach, scenes, specialists, synthesize, train_generator
 from flows.config import PipelineConfig
 from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
-from tasks.artifacts import Manifest, valid_manifest
+from tasks.artifacts import Manifest, lock_holder, lock_path, valid_manifest
 from tasks.preflight import validate_inputs
 from tasks.tracking import flatten
 
@@ -157,9 +157,13 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
         valid = [valid_manifest(s.folder) for s in specs]
         corrupt = [s for s, v in zip(specs, valid) if v is None and (s.folder / "manifest.json").exists()]
         n_done = sum(v is not None for v in valid)
-        # a planned unit's folder without a manifest: running now, or interrupted (a training keeps its checkpoint)
-        started = sum(v is None and s.folder.is_dir() and not (s.folder / "manifest.json").exists()
-                      for s, v in zip(specs, valid))
+        # a planned unit's folder without a manifest: running now (its lock is held), or interrupted (a training
+        # keeps its checkpoint)
+        started_specs = [s for s, v in zip(specs, valid)
+                         if v is None and s.folder.is_dir() and not (s.folder / "manifest.json").exists()]
+        holders = [lock_holder(lock_path(cfg.run.workdir, s.key)) for s in started_specs]
+        running = [h for h in holders if h is not None]
+        started = len(started_specs)
         final = valid[-1] if specs and specs[-1].unit in ("merge", "stage") else None
         outputs[module.STAGE] = final
         stage_dir = cfg.run.workdir / "stages" / module.STAGE
@@ -170,8 +174,11 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
             state, detail = "corrupt", f"{len(corrupt)} unit(s) with missing/altered files will be recomputed"
         elif n_done or started:
             done_part = "finished units are kept; " if n_done else ""
-            started_part = (f"{started} unit(s) started and not finished (running now, or interrupted: a training "
-                            "resumes from its last checkpoint); " if started else "")
+            interrupted = started - len(running)
+            started_part = "".join([
+                f"{len(running)} unit(s) running now ({running[0]}); " if running else "",
+                f"{interrupted} unit(s) interrupted (a training resumes from its last checkpoint); " if interrupted
+                else ""])
             state, detail = "partial", f"{done_part}{started_part}the next run computes the rest"
         elif others:
             state, detail = "stale", "outputs exist only for another config or code version"

@@ -76,6 +76,20 @@ def file_lock(path: Path, on_wait: Callable[[str], None] | None = None) -> Itera
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def lock_holder(path: Path) -> str | None:
+    """What holds the lock at ``path`` now (its pid and command line, as :func:`file_lock` wrote them), or None
+    when nothing does (no such file, or a lock left by a process that has ended)."""
+    if not path.exists():
+        return None
+    with open(path) as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return handle.read().strip() or "another process"
+        fcntl.flock(handle, fcntl.LOCK_UN)
+    return None
+
+
 # --------------------------------------------------------------------------- hashing
 
 

@@ -176,7 +176,8 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
 
 def test_status_tells_a_started_unit_from_another_configs_outputs(tmp_path):
     """A unit folder without a manifest (a training running now, or interrupted with its checkpoint) is 'partial',
-    not 'stale' ('outputs exist only for another config'), which it was reported as before."""
+    not 'stale' ('outputs exist only for another config'), which it was reported as before; the unit's lock tells
+    running from interrupted."""
     import flows.scenes
 
     cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
@@ -187,7 +188,17 @@ def test_status_tells_a_started_unit_from_another_configs_outputs(tmp_path):
     first.folder.mkdir(parents=True)
     (first.folder / "checkpoint.pt").write_bytes(b"x")
     row = next(r for r in status(cfg) if r.name == "scenes")
-    assert row.state == "partial" and "1 unit(s) started and not finished" in row.detail
+    assert row.state == "partial" and "1 unit(s) interrupted" in row.detail and "running" not in row.detail
+    import os
+
+    from tasks.artifacts import file_lock, lock_path
+
+    with file_lock(lock_path(tmp_path, first.key)):  # an invocation computing it now holds its lock
+        row = next(r for r in status(cfg) if r.name == "scenes")
+    assert row.state == "partial" and f"1 unit(s) running now (pid {os.getpid()} (" in row.detail
+    assert "interrupted" not in row.detail
+    row = next(r for r in status(cfg) if r.name == "scenes")  # the lock is released with its holder
+    assert "1 unit(s) interrupted" in row.detail
 
 
 @pytest.mark.parametrize("override, expected", [
