@@ -277,6 +277,37 @@ def test_user_mesh_in_millimetres_with_scale_works_end_to_end(cache_dir, tmp_pat
     assert "cup" in lib.names
 
 
+def test_a_dense_user_mesh_is_simplified_once_and_stays_on_its_surface(cache_dir, tmp_path, caplog):
+    """A scan-like mesh (an icosphere of 20,480 triangles here; one of 327,680 was still in trimesh's resting poses
+    after 12 min) is decimated to max_faces on load, logged once, and read from the cache after; 0 keeps it."""
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=0.03)
+    assert len(ball.faces) == 20480
+    with caplog.at_level(logging.WARNING):
+        lib = user_library(cache_dir, tmp_path, ball, name="scan", max_faces=2000)
+    assert caplog.text.count("has 20480 triangles; simplified to") == 1
+    mesh = lib.get("scan").mesh
+    assert len(mesh.faces) <= 2000 and mesh.is_watertight
+    radii = np.linalg.norm(mesh.vertices - mesh.center_mass, axis=1)
+    assert np.abs(radii - 0.03).max() < 1e-3  # the surface kept to within 1 mm
+    assert mesh.volume == pytest.approx(ball.volume, rel=0.02)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        again = user_library(cache_dir, tmp_path, ball, name="scan", max_faces=2000)
+    assert "simplified" not in caplog.text and np.array_equal(again.get("scan").mesh.faces, mesh.faces)
+    finer = user_library(cache_dir, tmp_path, ball, name="scan", max_faces=3000)
+    assert 2000 < len(finer.get("scan").mesh.faces) <= 3000 and finer.fingerprint("scan") != lib.fingerprint("scan")
+    from components.objects.meshes import simplify_mesh
+
+    assert simplify_mesh(ball, "scan", "f.obj", 0) is ball and simplify_mesh(ball, "scan", "f.obj", 20480) is ball
+
+
+def test_library_meshes_are_never_simplified_and_keep_their_fingerprints(library):
+    from components.objects.shapes import MeshShape
+
+    duck = library.get("duck")
+    assert isinstance(duck.spec.shape, MeshShape) and duck.spec.shape.max_faces is None
+
+
 def test_user_mesh_may_not_shadow_a_library_object(cache_dir, tmp_path):
     with pytest.raises(MultigraspError, match="name of a library object"):
         user_library(cache_dir, tmp_path, trimesh.creation.box(extents=(0.04, 0.03, 0.02)), name="duck")

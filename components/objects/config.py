@@ -15,6 +15,10 @@ DEFAULT_TRAIN_OBJECTS = ["cube", "cylinder", "sphere", "capsule", "ellipsoid", "
 DEFAULT_OOD_OBJECTS = ["duck", "bunny", "torus"]
 
 
+#: UserMesh.max_faces by default
+DEFAULT_USER_MESH_MAX_FACES = 10_000
+
+
 class UserMesh(Section):
     """A mesh brought by the user (OBJ, STL or PLY), added to the library under ``name``."""
 
@@ -23,6 +27,13 @@ class UserMesh(Section):
     scale: float = Field(1.0, gt=0, description="Uniform factor applied to the file's coordinates to get metres (e.g. 0.001 for a file in millimetres).")
     mass_kg: float | None = Field(None, gt=0, description="Mass in kg; default: volume x objects.default_density_kg_m3.")
     friction: float | None = Field(None, ge=0, description="Lateral friction coefficient; default: objects.default_friction.")
+    max_faces: int = Field(
+        DEFAULT_USER_MESH_MAX_FACES, ge=0,
+        description="A mesh with more triangles than this is simplified to this many on load (quadric decimation, "
+        "trimesh.Trimesh.simplify_quadric_decimation), with a log line; 0 = never.  trimesh's resting poses are "
+        "quadratic in the convex hull's facets: a sphere-like scan of 327,680 triangles was still in them after 12 min, "
+        "one of 20,480 took 33 s, one of ~10,000 6 s (once per work dir: the poses are cached).  10,000 triangles on "
+        "a 5 cm object are ~1 mm apart, below the PN metric's 3 mm samples.")
     repair: Literal["fill_holes", "convex_hull"] = Field(
         "fill_holes",
         description=(

@@ -439,7 +439,8 @@ class ObjectLibrary:
         for user in cfg.user:
             if user.name in self._specs:
                 raise MultigraspError(f"user object '{user.name}' has the name of a library object; give it another name in objects.user")
-            shape = MeshShape(type="mesh", source=str(user.mesh), scale=user.scale, repair=user.repair)
+            shape = MeshShape(type="mesh", source=str(user.mesh), scale=user.scale, repair=user.repair,
+                              max_faces=user.max_faces)
             spec = ObjectSpec(role="user", shape=shape, mass_kg=user.mass_kg, friction=user.friction)
             self._specs[user.name] = (spec, Path.cwd())
         self._check_names()
@@ -506,6 +507,8 @@ class ObjectLibrary:
 
     def _fingerprint(self, name: str, spec: ObjectSpec, base_dir: Path) -> str:
         shape = spec.shape.model_dump(mode="json")
+        if isinstance(spec.shape, MeshShape) and not shape.get("max_faces"):
+            shape.pop("max_faces", None)  # never simplified: the fingerprint it had before the field existed
         if isinstance(spec.shape, MeshShape):
             for key in ("source", "collision"):
                 if shape[key] is not None:
@@ -522,11 +525,28 @@ class ObjectLibrary:
         }
         return hashlib.sha256(json.dumps(definition, sort_keys=True).encode()).hexdigest()
 
+    def _load_mesh(self, name: str, shape: MeshShape, path: Path, fingerprint: str) -> trimesh.Trimesh:
+        """The cleaned mesh of the file in file units, simplified to ``shape.max_faces`` where it has more
+        (:func:`meshes.simplify_mesh`).  A simplified mesh is cached under ``cache_dir/meshes/<fingerprint>.npz``:
+        every later library of the work dir (each shard builds one) reads it instead of decimating again, and the
+        simplification is logged once."""
+        cached = self.cache_dir / "meshes" / f"{fingerprint}.npz"
+        if shape.max_faces:
+            arrays = cache.load_arrays(cached, fingerprint)
+            if arrays is not None:
+                return trimesh.Trimesh(arrays["vertices"], arrays["faces"], process=False)
+        raw = meshes.clean_mesh(meshes.load_mesh_file(path, name))
+        simple = meshes.simplify_mesh(raw, name, path, shape.max_faces)
+        if simple is not raw:
+            cache.save_arrays(cached, fingerprint, {"vertices": np.asarray(simple.vertices),
+                                                    "faces": np.asarray(simple.faces)})
+        return simple
+
     def _build(self, name: str, spec: ObjectSpec, base_dir: Path) -> ObjectModel:
         shape = spec.shape
         if isinstance(shape, MeshShape):
             path = resolve_source(shape.source, base_dir)
-            raw = meshes.clean_mesh(meshes.load_mesh_file(path, name))
+            raw = self._load_mesh(name, shape, path, self._fingerprint(name, spec, base_dir))
             raw.apply_scale(shape.scale)
             mesh = meshes.make_watertight(raw, name, path, shape.repair)
             transform = meshes.object_frame_transform(mesh)

@@ -60,6 +60,21 @@ def clean_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh
 
 
+def simplify_mesh(mesh: trimesh.Trimesh, name: str, path: Path | str, max_faces: int | None) -> trimesh.Trimesh:
+    """``mesh`` with at most ``max_faces`` triangles (quadric decimation, trimesh's wrapper of fast-simplification;
+    UserMesh.max_faces), logged; unchanged if it has no more, or ``max_faces`` is None or 0.  Decimation keeps the
+    surface within a fraction of the removed edges' length; a hole it opens is left to :func:`make_watertight`."""
+    if not max_faces or len(mesh.faces) <= max_faces:
+        return mesh
+    simple = mesh.simplify_quadric_decimation(face_count=max_faces)
+    if len(simple.faces) == 0:
+        raise MultigraspError(f"object '{name}': simplifying {path} to {max_faces} triangles left none; raise "
+                              "its max_faces (objects.user) or simplify the file yourself")
+    log.warning("object '%s': %s has %d triangles; simplified to %d (objects.user max_faces; 0 keeps every one)",
+                name, path, len(mesh.faces), len(simple.faces))
+    return simple
+
+
 def make_watertight(mesh: trimesh.Trimesh, name: str, path: Path | str, repair: str) -> trimesh.Trimesh:
     """A closed, outward-oriented version of ``mesh``, or a one-line error.
 

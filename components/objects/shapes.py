@@ -323,6 +323,7 @@ class MeshShape(Section):
     scale: float = Field(1.0, gt=0, description="Uniform factor from file units to metres.")
     collision: str | None = Field(None, description="Optional convex decomposition shipped with the mesh (e.g. pybullet_data:duck_vhacd.obj), same frame and units as `source`.")
     repair: Literal["fill_holes", "convex_hull"] = Field("fill_holes", description="Handling of a non-watertight mesh (see UserMesh.repair).")
+    max_faces: int | None = Field(None, ge=0, description="Simplify a mesh with more triangles than this to this many on load (see UserMesh.max_faces); None or 0 = never.")
 
     def native_geometry(self) -> NativeGeometry | None:
         """None: meshes use their hull (convex) or a convex decomposition."""
