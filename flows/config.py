@@ -18,6 +18,7 @@ with one line naming the key and what is allowed.
 from __future__ import annotations
 
 import difflib
+import functools
 from pathlib import Path
 from typing import Any, Literal
 
@@ -236,7 +237,10 @@ def with_overrides(cfg: PipelineConfig, overrides: dict[str, Any]) -> PipelineCo
 
 
 def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> str:
-    """Digest of the named config sections (dotted paths), the part of a cache key from config."""
+    """Digest of the named config sections (dotted paths), the part of a cache key from config.
+
+    With ``objects`` among them, the contents of the files the config names there (:func:`object_file_digests`)
+    count too, so a user mesh edited in place keys new units instead of serving those of the old geometry."""
     from tasks.artifacts import digest
 
     dump = cfg.model_dump(mode="json")
@@ -246,4 +250,35 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
         for part in name.split("."):
             node = node[part]
         picked[name] = node
+    files = object_file_digests(cfg.objects) if "objects" in sections else {}
+    if files:  # only configs that name files: every other key stays as it was before files counted
+        picked["objects.files"] = files
     return digest({"sections": picked, "extra": extra})
+
+
+def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
+    """sha256 of each user mesh file (``objects.user``, resolved as the library resolves it: from the working
+    directory) and of a custom ``objects.library_file``, by the path as written; ``missing`` for a file that is not
+    there (the library's own check then names it)."""
+    named = {str(user.mesh): Path(user.mesh).expanduser() for user in objects.user}
+    if objects.library_file is not None:
+        named[str(objects.library_file)] = Path(objects.library_file).expanduser()
+    out = {}
+    for written, path in named.items():
+        path = path if path.is_absolute() else Path.cwd() / path
+        try:
+            stat = path.stat()
+        except OSError:
+            out[written] = "missing"
+            continue
+        out[written] = _file_sha256(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _file_sha256(path: str, mtime_ns: int, size: int) -> str:
+    """sha256 of a file's bytes, memoised by its identity (path, modification time, size): the stage plans ask for
+    it once per unit, and a scan is tens of MB."""
+    from components.fileio import sha256_file
+
+    return sha256_file(Path(path))

@@ -84,6 +84,28 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     assert all(r.data.tags["cached_from_run"] in {c.info.run_id for c in children} for r in cached)
 
 
+def test_a_user_mesh_edited_in_place_is_computed_again_and_an_untouched_one_is_served(tmp_path):
+    """The stage keys held the mesh's path, not its contents: a mesh fixed and re-exported under the same name was
+    served from the cache with the old geometry."""
+    import trimesh
+
+    mesh = tmp_path / "block.obj"
+    trimesh.creation.box(extents=(0.04, 0.03, 0.025)).export(mesh)
+    config = tmp_path / "my.yaml"
+    config.write_text(f"objects:\n  user:\n    - {{name: block, mesh: {mesh}}}\n  ood: [block]\n")
+    workdir = tmp_path / "runs"
+    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "scenes"]
+    for item in SMALL:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    first = executions(workdir)
+    assert main(argv) == 0 and executions(workdir) == first  # untouched: served from cache
+    trimesh.creation.box(extents=(0.05, 0.03, 0.025)).export(mesh)  # edited in place, same path
+    assert main(argv) == 0
+    again = executions(workdir)[len(first):]
+    assert again and all(label.startswith("scenes/") for label in again)
+
+
 def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_once(tmp_path):
     """A second terminal running the same command: the second crashed in MLflow's schema migration of the new
     store ("duplicate column name"), and both would have computed every unit.  Now the store is created under a
