@@ -544,9 +544,10 @@ class ObjectLibrary:
 
     def _build(self, name: str, spec: ObjectSpec, base_dir: Path) -> ObjectModel:
         shape = spec.shape
+        fingerprint = self._fingerprint(name, spec, base_dir)
         if isinstance(shape, MeshShape):
             path = resolve_source(shape.source, base_dir)
-            raw = self._load_mesh(name, shape, path, self._fingerprint(name, spec, base_dir))
+            raw = self._load_mesh(name, shape, path, fingerprint)
             raw.apply_scale(shape.scale)
             mesh = meshes.make_watertight(raw, name, path, shape.repair)
             transform = meshes.object_frame_transform(mesh)
@@ -556,7 +557,7 @@ class ObjectLibrary:
             transform = np.eye(4)
         mass = spec.mass_kg if spec.mass_kg is not None else self.cfg.default_density_kg_m3 * float(mesh.volume)
         friction = spec.friction if spec.friction is not None else self.cfg.default_friction
-        model = ObjectModel(name, spec, mesh, transform, base_dir, mass, friction, self._fingerprint(name, spec, base_dir), self.cfg, self.cache_dir)
+        model = ObjectModel(name, spec, mesh, transform, base_dir, mass, friction, fingerprint, self.cfg, self.cache_dir)
         width = model.graspable_width()
         limit = self.cfg.max_graspable_width_m
         if width > limit:
