@@ -28,6 +28,6 @@ def require_device(name: str, source: str = "--device") -> torch.device:
         problem = cuda_problem()
         if problem is not None:
             raise MultigraspError(
-                f"{source} is cuda but {problem} — use --device cpu, or install a CUDA build of torch before the "
-                "project (README 'Two commands')")
+                f"{source} is cuda but {problem} — use --device cpu, or install a CUDA build of torch first "
+                "(README 'On a GPU')")
     return torch.device(name)

@@ -258,11 +258,26 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
 
 def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
     """sha256 of each user mesh file (``objects.user``, resolved as the library resolves it: from the working
-    directory) and of a custom ``objects.library_file``, by the path as written; ``missing`` for a file that is not
-    there (the library's own check then names it)."""
+    directory), of a custom ``objects.library_file`` and of the mesh files it names (from its folder; the installed
+    ``pybullet_data`` meshes of the default library are not hashed), by the path as written; ``missing`` for a file
+    that is not there (the library's own check then names it)."""
+    from components.objects.library import PYBULLET_DATA_PREFIX, read_library_file, resolve_source
+    from components.objects.shapes import MeshShape
+
     named = {str(user.mesh): Path(user.mesh).expanduser() for user in objects.user}
     if objects.library_file is not None:
-        named[str(objects.library_file)] = Path(objects.library_file).expanduser()
+        library = Path(objects.library_file).expanduser()
+        library = library if library.is_absolute() else Path.cwd() / library
+        named[str(objects.library_file)] = library
+        try:
+            specs = read_library_file(library).objects.values() if library.is_file() else []
+        except MultigraspError:  # the library's own check names the problem when the stage builds it
+            specs = []
+        for spec in specs:
+            if isinstance(spec.shape, MeshShape):
+                for source in (spec.shape.source, spec.shape.collision):
+                    if source and not source.startswith(PYBULLET_DATA_PREFIX):
+                        named[source] = resolve_source(source, library.parent)
     out = {}
     for written, path in named.items():
         path = path if path.is_absolute() else Path.cwd() / path

@@ -25,6 +25,7 @@ from tasks.units import UnitSpec, make_spec, records_dir
 log = logging.getLogger("multigrasp")
 
 SERVER_START_TIMEOUT_S = 90.0
+RAY_MISSING = "run.runner=ray needs prefect-ray: pip install 'multigrasp[ray]' (or use threads/processes)"
 PREFECT_DRAIN_TIMEOUT_S = 30.0  # at most this long to send queued run logs and events before the server stops
 
 
@@ -47,7 +48,7 @@ def make_task_runner(run: RunConfig):
     try:
         from prefect_ray import RayTaskRunner
     except ImportError:
-        raise MultigraspError("run.runner=ray needs prefect-ray: pip install 'multigrasp[ray]' (or use threads/processes)") from None
+        raise MultigraspError(RAY_MISSING) from None
     return RayTaskRunner(address=run.ray_address) if run.ray_address else RayTaskRunner()
 
 
@@ -191,10 +192,10 @@ def ray_session(run: RunConfig, records: Path) -> Iterator[None]:
     reuses it and its warm workers.  The workers get this run's Prefect settings (``RAY_WORKER_ENV`` and the
     results folder) through the runtime environment, so a worker on another node reports to the same server."""
     try:
+        import prefect_ray  # noqa: F401  (the stages' runner: missing, it would fail only at the first stage)
         import ray
     except ImportError:
-        raise MultigraspError("run.runner=ray needs prefect-ray: pip install 'multigrasp[ray]' (or use "
-                              "threads/processes)") from None
+        raise MultigraspError(RAY_MISSING) from None
     if ray.is_initialized():  # the caller's own Ray (a notebook, a test): use it, leave it running
         yield
         return

@@ -129,3 +129,31 @@ def test_bench_and_paper_profiles_share_the_multi_object_setting():
         assert b == p, {k: (b[k], p[k]) for k in b if b[k] != p[k]}
     assert paper.synthesis.optimizer.batch_size > bench.synthesis.optimizer.batch_size
     assert paper.synthesis.optimizer_for(5).fc_mode == "group"
+
+
+def test_the_objects_digest_follows_the_contents_of_the_files_the_config_names(tmp_path):
+    """User meshes and a custom library (its YAML and the meshes it names, relative to it) are part of the keys of
+    the stages that use the objects: a file edited in place keys new units."""
+    import trimesh
+
+    (tmp_path / "meshes").mkdir()
+    part, mug = tmp_path / "meshes" / "part.obj", tmp_path / "mug.obj"
+    trimesh.creation.box(extents=(0.04, 0.03, 0.02)).export(part)
+    trimesh.creation.box(extents=(0.03, 0.03, 0.03)).export(mug)
+    library = tmp_path / "library.yaml"
+    library.write_text("version: 1\nobjects:\n  part:\n    role: train\n"
+                       "    shape: {type: mesh, source: meshes/part.obj}\n")
+    plain = load_config("smoke", sets=[], workdir=tmp_path)
+    cfg = load_config("smoke", sets=[f"objects.library_file={library}", f"objects.user=[{{name: mug, mesh: {mug}}}]"],
+                      workdir=tmp_path)
+
+    def digests():
+        return section_digest(cfg, "objects"), section_digest(cfg, "scenes"), section_digest(plain, "objects")
+
+    first = digests()
+    trimesh.creation.box(extents=(0.05, 0.03, 0.02)).export(part)  # a library mesh edited in place
+    second = digests()
+    trimesh.creation.box(extents=(0.03, 0.03, 0.04)).export(mug)  # a user mesh edited in place
+    third = digests()
+    assert len({first[0], second[0], third[0]}) == 3
+    assert first[1:] == second[1:] == third[1:]  # sections without objects, and configs naming no files, keep theirs

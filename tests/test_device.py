@@ -25,7 +25,7 @@ def test_cuda_problem_names_a_cpu_only_build_and_a_missing_device(monkeypatch):
 def test_require_cuda_without_a_gpu_names_the_option_and_the_fix(monkeypatch):
     monkeypatch.setattr(device, "cuda_problem", lambda: "this torch (x) is a CPU-only build")
     with pytest.raises(MultigraspError, match=r"^--device is cuda but this torch \(x\) is a CPU-only build — use "
-                                              r"--device cpu, or install a CUDA build of torch"):
+                                              r"--device cpu, or install a CUDA build of torch first \(README 'On a GPU'\)$"):
         device.require_device("cuda")
 
 

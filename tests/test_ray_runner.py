@@ -45,6 +45,7 @@ def test_a_local_ray_gets_the_runs_prefect_server_and_a_cluster_does_not(tmp_pat
 def test_one_ray_per_invocation_with_the_runs_prefect_settings(tmp_path, monkeypatch):
     fake = FakeRay()
     monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.setitem(sys.modules, "prefect_ray", types.ModuleType("prefect_ray"))
     for name in RAY_WORKER_ENV:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("PREFECT_API_URL", "http://127.0.0.1:4242/api")
@@ -60,6 +61,7 @@ def test_one_ray_per_invocation_with_the_runs_prefect_settings(tmp_path, monkeyp
 def test_a_cluster_address_is_joined_without_local_only_options(tmp_path, monkeypatch):
     fake = FakeRay()
     monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.setitem(sys.modules, "prefect_ray", types.ModuleType("prefect_ray"))
     with ray_session(_run(tmp_path, "run.ray_address=ray://head:10001"), tmp_path):
         pass
     assert fake.calls[0][1]["address"] == "ray://head:10001" and "include_dashboard" not in fake.calls[0][1]
@@ -68,6 +70,7 @@ def test_a_cluster_address_is_joined_without_local_only_options(tmp_path, monkey
 def test_a_ray_the_caller_started_is_used_and_left_running(tmp_path, monkeypatch):
     fake = FakeRay(initialized=True)
     monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.setitem(sys.modules, "prefect_ray", types.ModuleType("prefect_ray"))
     with ray_session(_run(tmp_path), tmp_path):
         pass
     assert fake.calls == [] and fake.initialized
@@ -78,5 +81,10 @@ def test_without_ray_installed_the_session_names_the_extra(tmp_path, monkeypatch
 
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
     with pytest.raises(MultigraspError, match=r"pip install 'multigrasp\[ray\]'"):
+        with ray_session(_run(tmp_path), tmp_path):
+            pass
+    monkeypatch.setitem(sys.modules, "ray", FakeRay())  # Ray without prefect-ray: caught before any stage too
+    monkeypatch.setitem(sys.modules, "prefect_ray", None)
+    with pytest.raises(MultigraspError, match=r"needs prefect-ray"):
         with ray_session(_run(tmp_path), tmp_path):
             pass
