@@ -10,6 +10,7 @@
     multigrasp evaluate execution                     # lift success of the specialists (Syn-Pl / Com / Geo)
     multigrasp generate --objects cube,cylinder --n 16  # pre-grasps from the trained generator
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
+    multigrasp prune --profile bench --keep mini  # delete stage outputs no named config uses (--yes to delete)
     multigrasp bench kinematics --json out.json # FK + distance timings
     multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
     multigrasp bench sim --json out.json        # lift env steps/s vs bare PyBullet (overhead_ratio)
@@ -81,6 +82,17 @@ def _load(args: argparse.Namespace, needs_device: bool = True):
     if needs_device:
         require_device(cfg.run.device, "--device" if args.device else f"run.device of profile {cfg.profile!r} (or --config / --set)")
     return cfg
+
+
+def _using(cfg, create: bool = False):
+    """The work dir's lock, shared, for a command that reads or writes its units: a ``prune --yes`` waits for none of
+    them and none of them starts while one deletes."""
+    from tasks.artifacts import workdir_in_use
+
+    def waiting() -> None:
+        print(f"a prune is deleting unused outputs of {cfg.run.workdir}; waiting for it", file=sys.stderr, flush=True)
+
+    return workdir_in_use(cfg.run.workdir, on_wait=waiting, create=create)
 
 
 class VersionAction(argparse.Action):
@@ -171,6 +183,20 @@ def build_parser() -> argparse.ArgumentParser:
                          "-> results/ablation_generator.json")
     _config_args(ev)
 
+    pr = sub.add_parser("prune", help="delete the stage outputs that no kept config uses (dry run unless --yes)",
+                        description="List, then with --yes delete, the unit folders under <workdir>/stages/ that the "
+                                    "named configs do not use now: outputs of changed settings, of other profiles, "
+                                    "and of older code (an upgrade changes every key). Every unit the configs plan "
+                                    "now is kept -- done, running, interrupted (a training's checkpoint) -- with "
+                                    "those of their ablation variants. Name every config you still want to resume "
+                                    "or evaluate: --profile (with --config / --set) and --keep for each other one.")
+    _config_args(pr)
+    pr.set_defaults(profile=None)
+    pr.add_argument("--keep", action="append", default=[], metavar="PROFILE[:FILE]",
+                    help="another config whose outputs to keep (repeatable): a profile, or a profile and a YAML file "
+                         "merged over it, e.g. --keep mini --keep bench:my.yaml")
+    pr.add_argument("--yes", action="store_true", help="delete (without it, only print what would be deleted)")
+
     ui = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 for the work dir",
                         description="Serve the MLflow UI for the work dir's store (or MLFLOW_TRACKING_URI) on "
                                     "127.0.0.1. Stop it with Ctrl-C.")
@@ -205,7 +231,8 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
 
     cfg = _load(args)
     modules = select_stages(only=only if only is not None else args.only, until=getattr(args, "until", None))
-    ctx = run_pipeline(cfg, modules, command=command)
+    with _using(cfg, create=True):
+        ctx = run_pipeline(cfg, modules, command=command)
     console = ctx.console
     executed = sum(r.executed for r in ctx.results.values())
     cached = sum(r.cached for r in ctx.results.values())
@@ -235,6 +262,34 @@ def _cmd_status(args: argparse.Namespace) -> int:
                       row.folder or "-", row.detail)
     Console().print(table)
     return 0
+
+
+def _cmd_prune(args: argparse.Namespace) -> int:
+    from flows.config import load_config
+    from flows.prune import human_bytes, plan_lines, prune
+
+    if args.profile is None:
+        raise MultigraspError("prune keeps only what the configs you name use — pass --profile (with the --config / "
+                              "--set of your runs) and --keep PROFILE[:FILE] for every other config in this work dir")
+    cfg = _load(args, needs_device=False)
+    configs, labels = [cfg], [_label(args.profile, args.config, args.sets)]
+    for item in args.keep:
+        profile, _, file = item.partition(":")
+        configs.append(load_config(profile, Path(file) if file else None, [], workdir=cfg.run.workdir))
+        labels.append(_label(profile, Path(file) if file else None, []))
+    plan, freed = prune(configs, labels, delete=args.yes)
+    for line in plan_lines(plan):
+        print(line)
+    if plan.candidates and not args.yes:
+        print(f"would delete {len(plan.candidates)} folder(s), {human_bytes(plan.bytes)} — run again with --yes to "
+              "delete them")
+    elif args.yes:
+        print(f"deleted {len(plan.candidates)} folder(s); {human_bytes(freed)} freed")
+    return 0
+
+
+def _label(profile: str, config: Path | None, sets: list[str]) -> str:
+    return " ".join([f"profile {profile}"] + ([f"+ {config}"] if config else []) + [f"--set {s}" for s in sets])
 
 
 def _cmd_stages(_: argparse.Namespace) -> int:
@@ -312,7 +367,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.target == "execution":
         from flows.evaluate_execution import evaluate_execution
 
-        report = evaluate_execution(cfg, ablations=args.ablations)
+        with _using(cfg):
+            report = evaluate_execution(cfg, ablations=args.ablations)
         print(report.markdown)
         print(f"written: {report.json_path}  {report.ablation_path}")
         print(f"per-pose outcomes: {report.json_path.parent / 'execution'}/<setting>/outcomes.json — compare two runs "
@@ -320,7 +376,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if args.source is None:
         raise MultigraspError("evaluate pregrasp needs --source (synthetic) — e.g. multigrasp evaluate pregrasp --source synthetic")
-    report = evaluate_pregrasp(cfg, args.source, ablations=args.ablations)
+    with _using(cfg):
+        report = evaluate_pregrasp(cfg, args.source, ablations=args.ablations)
     print(report.markdown)
     print(f"written: {report.json_path}  {report.markdown_path}")
     return 0
@@ -330,7 +387,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from flows.generate import generate
 
     cfg = _load(args)
-    report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed)
+    with _using(cfg):
+        report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed)
     print(f"{report.n} grasp(s) in {report.folder}  (sampling + IK {report.seconds['sample_and_ik_s']} s, refinement "
           f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm)")
     return 0
@@ -347,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
-    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui,
+    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui, "prune": _cmd_prune,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
                 "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}

@@ -142,19 +142,53 @@ class StageStatus:
     detail: str = ""
 
 
-def status(cfg: PipelineConfig) -> list[StageStatus]:
-    """Which stages of this config are done, partial, stale, corrupt, missing or blocked."""
-    rows: list[StageStatus] = []
+@dataclass
+class StagePlan:
+    """The units a stage of a config has now: their specs (cache keys and folders) and which of them verify.
+
+    ``blocked_by`` names the upstream stages that are not done; such a stage has no specs, since its keys contain
+    the upstream outputs' hashes."""
+
+    module: ModuleType
+    specs: list
+    valid: list
+    blocked_by: list[str]
+    final: Manifest | None
+
+    @property
+    def started(self) -> bool:
+        """Whether any planned unit has a folder (done, running, interrupted or altered) without the stage being
+        done: a partial or corrupt stage, whose outputs may yet be completed or recomputed as they were."""
+        return self.final is None and any(s.folder.is_dir() for s in self.specs)
+
+
+def plan_stages(cfg: PipelineConfig, check=valid_manifest) -> list[StagePlan]:
+    """Every stage of ``cfg`` in order with its planned units; ``check(folder)`` verifies a unit (a memoised
+    :func:`valid_manifest` where several configs are planned over one work dir)."""
+    plans: list[StagePlan] = []
     outputs: dict[str, Manifest | None] = {}
     for module in STAGES:
         blocked = [u for u in module.UPSTREAM if outputs.get(u) is None]
         if blocked:
-            rows.append(StageStatus(module.STAGE, "blocked", 0, 0, None, f"waits for {', '.join(blocked)}"))
+            plans.append(StagePlan(module, [], [], blocked, None))
             outputs[module.STAGE] = None
             continue
-        upstream = {u: outputs[u] for u in module.UPSTREAM}
-        specs = module.planned_units(cfg, upstream)
-        valid = [valid_manifest(s.folder) for s in specs]
+        specs = module.planned_units(cfg, {u: outputs[u] for u in module.UPSTREAM})
+        valid = [check(s.folder) for s in specs]
+        final = valid[-1] if specs and specs[-1].unit in ("merge", "stage") else None
+        outputs[module.STAGE] = final
+        plans.append(StagePlan(module, specs, valid, [], final))
+    return plans
+
+
+def status(cfg: PipelineConfig) -> list[StageStatus]:
+    """Which stages of this config are done, partial, stale, corrupt, missing or blocked."""
+    rows: list[StageStatus] = []
+    for plan in plan_stages(cfg):
+        module, specs, valid, final = plan.module, plan.specs, plan.valid, plan.final
+        if plan.blocked_by:
+            rows.append(StageStatus(module.STAGE, "blocked", 0, 0, None, f"waits for {', '.join(plan.blocked_by)}"))
+            continue
         corrupt = [s for s, v in zip(specs, valid) if v is None and (s.folder / "manifest.json").exists()]
         n_done = sum(v is not None for v in valid)
         # a planned unit's folder without a manifest: running now (its lock is held), or interrupted (a training
@@ -164,8 +198,6 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
         holders = [lock_holder(lock_path(cfg.run.workdir, s.key)) for s in started_specs]
         running = [h for h in holders if h is not None]
         started = len(started_specs)
-        final = valid[-1] if specs and specs[-1].unit in ("merge", "stage") else None
-        outputs[module.STAGE] = final
         stage_dir = cfg.run.workdir / "stages" / module.STAGE
         others = [p for p in stage_dir.iterdir() if p.is_dir()] if stage_dir.exists() else []
         if final is not None:
@@ -181,7 +213,8 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
                 else ""])
             state, detail = "partial", f"{done_part}{started_part}the next run computes the rest"
         elif others:
-            state, detail = "stale", "outputs exist only for another config or code version"
+            state, detail = "stale", ("outputs exist only for another config or code version (`multigrasp prune` "
+                                      "lists them)")
         else:
             state, detail = "missing", ""
         rows.append(StageStatus(module.STAGE, state, n_done, len(specs),

@@ -9,7 +9,8 @@ Layout of a work directory (default ``./runs``)::
       cache/                       component caches (mesh SDF grids, convex decompositions, URDF)
       prefect/results/             Prefect result records (one small manifest per cache key)
       results/                     human-facing reports (JSON + markdown tables)
-      locks/                       one lock file per unit being computed (two invocations compute a unit once)
+      locks/                       one lock file per unit being computed (two invocations compute a unit once), the
+                                   work dir's own lock (held shared by every invocation, exclusively by prune)
       mlflow.db, mlartifacts/      the embedded MLflow store
 
 A unit's cache key is ``sha256(stage, config-section digest, upstream manifest hashes,
@@ -88,6 +89,81 @@ def lock_holder(path: Path) -> str | None:
             return handle.read().strip() or "another process"
         fcntl.flock(handle, fcntl.LOCK_UN)
     return None
+
+
+WORKDIR_LOCK = "workdir"
+"""Name of the work dir's own lock: shared by every invocation that reads or writes units, exclusive for prune."""
+
+INVOCATIONS_DIR = "invocations"
+"""``<workdir>/locks/invocations/<pid>``: one file per invocation using the work dir (what it runs), to name it."""
+
+
+def _invocation_file(workdir: Path) -> Path:
+    return Path(workdir) / LOCKS_DIR / INVOCATIONS_DIR / str(os.getpid())
+
+
+@contextlib.contextmanager
+def workdir_in_use(workdir: Path, on_wait: Callable[[], None] | None = None, create: bool = True) -> Iterator[None]:
+    """Hold the work dir's lock *shared* for the ``with`` block: any number of invocations (``run``, ``evaluate``,
+    ``generate``) use a work dir together, while ``prune`` (:func:`workdir_exclusive`) waits for none of them and
+    deletes nothing under a running one.  ``on_wait()`` is called once if a prune holds it now, before blocking.
+    Without ``create``, a work dir that does not exist is left so (the command will say what is missing)."""
+    if not create and not Path(workdir).is_dir():
+        yield
+        return
+    path = lock_path(workdir, WORKDIR_LOCK)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if on_wait is not None:
+                on_wait()
+            fcntl.flock(handle, fcntl.LOCK_SH)
+        mine = _invocation_file(workdir)
+        try:
+            atomic_write_text(mine, f"pid {os.getpid()} ({' '.join(sys.argv)[:200]})")
+            yield
+        finally:
+            mine.unlink(missing_ok=True)
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
+def workdir_exclusive(workdir: Path) -> Iterator[list[str] | None]:
+    """Try to hold the work dir's lock *exclusively* for the ``with`` block, without waiting.  Yields None when it
+    holds it, or else the invocations using the work dir now (what :func:`workdir_in_use` recorded; files left by
+    processes that have ended are removed)."""
+    path = lock_path(workdir, WORKDIR_LOCK)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield _live_invocations(workdir) or ["another process"]
+            return
+        try:
+            yield None
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _live_invocations(workdir: Path) -> list[str]:
+    folder = Path(workdir) / LOCKS_DIR / INVOCATIONS_DIR
+    found = []
+    for entry in sorted(folder.glob("*")) if folder.is_dir() else []:
+        try:
+            os.kill(int(entry.name), 0)
+        except ProcessLookupError:
+            entry.unlink(missing_ok=True)
+            continue
+        except (ValueError, PermissionError):
+            pass
+        try:
+            found.append(entry.read_text().strip())
+        except OSError:
+            continue
+    return found
 
 
 # --------------------------------------------------------------------------- hashing
