@@ -25,14 +25,17 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# the smoke pipeline, then its three evaluations (the tables beside the paper's, in $(WORKDIR)/results/)
+# the smoke pipeline, then its three evaluations and the report (the tables beside the paper's, in
+# $(WORKDIR)/results/)
 demo: install
 	$(BIN)/multigrasp run --profile smoke --workdir $(WORKDIR)
 	$(BIN)/multigrasp evaluate pregrasp --source synthetic --profile smoke --workdir $(WORKDIR)
 	$(BIN)/multigrasp evaluate pregrasp --source generated --profile smoke --workdir $(WORKDIR)
 	$(BIN)/multigrasp evaluate execution --profile smoke --workdir $(WORKDIR)
+	$(BIN)/multigrasp report --workdir $(WORKDIR) > /dev/null
 	@echo ""
-	@echo "Stage outputs: $(WORKDIR)/stages/; tables: $(WORKDIR)/results/*.md (JSON beside them)"
+	@echo "Stage outputs: $(WORKDIR)/stages/; tables: $(WORKDIR)/results/*.md (JSON beside them);"
+	@echo "all of them beside the paper's: $(WORKDIR)/results/report.md"
 	@echo "Status: $(BIN)/multigrasp status --workdir $(WORKDIR)"
 	@echo "Open the MLflow UI:  $(BIN)/multigrasp ui --workdir $(WORKDIR)   then browse http://127.0.0.1:5000"
 

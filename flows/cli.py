@@ -11,6 +11,7 @@
     multigrasp generate --objects cube,cylinder --n 16  # pre-grasps from the trained generator
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp prune --profile bench --keep mini  # delete stage outputs no named config uses (--yes to delete)
+    multigrasp report                           # the work dir's results beside the paper's tables
     multigrasp bench kinematics --json out.json # FK + distance timings
     multigrasp bench synthesis --json out.json  # synthesis throughput on a fixed dual-object scene
     multigrasp bench sim --json out.json        # lift env steps/s vs bare PyBullet (overhead_ratio)
@@ -183,6 +184,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "-> results/ablation_generator.json")
     _config_args(ev)
 
+    rp = sub.add_parser("report", help="the work dir's evaluation results beside the paper's Tables I and II "
+                                       "-> results/report.md",
+                        description="Collect what `multigrasp evaluate` wrote under <workdir>/results/ into one "
+                                    "markdown file, every figure beside the paper's (Table I: Syn / Gen x Pl / Com / "
+                                    "Geo; Table II: ablations), with the profile and time of each evaluation and the "
+                                    "command for any that has not run. Nothing is recomputed.")
+    rp.add_argument("--workdir", type=Path, default=Path("runs"), help="work directory (default ./runs)")
+
     pr = sub.add_parser("prune", help="delete the stage outputs that no kept config uses (dry run unless --yes)",
                         description="List, then with --yes delete, the unit folders under <workdir>/stages/ that the "
                                     "named configs do not use now: outputs of changed settings, of other profiles, "
@@ -261,6 +270,15 @@ def _cmd_status(args: argparse.Namespace) -> int:
         table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
                       row.folder or "-", row.detail)
     Console().print(table)
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from flows.report import write_report
+
+    report = write_report(args.workdir)
+    print(report.markdown)
+    print(f"written: {report.path}")
     return 0
 
 
@@ -406,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui, "prune": _cmd_prune,
+                "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
                 "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}

@@ -27,10 +27,7 @@ from components.errors import MultigraspError
 from flows.config import PipelineConfig
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
-#: The paper's Syn row (Syn-Pl, MultiGrasp Table "pre-grasp quality"; DESIGN §6), for comparison only.
-PAPER_SYN_ROW = {"setting": "Syn (paper, Pl)", "q1": 0.30, "pn_mm": 1.64, "div_deg": 8.54}
-#: The paper's Gen-Pl row (after refinement), for comparison only.
-PAPER_GEN_ROW = {"setting": "Gen (paper, Pl)", "q1": 0.29, "pn_mm": 1.67, "div_deg": 9.24}
+from flows.paper import PAPER_GENERATOR_ABLATIONS, pregrasp_paper
 
 
 @dataclass(frozen=True)
@@ -137,28 +134,59 @@ def _fmt(value: Any, digits: int) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
 
+def _paper_cell(setting: str) -> str:
+    paper = pregrasp_paper(setting)
+    if paper is None:
+        return "–"
+    cell = f"{paper['q1']:.2f} / {paper['pn_mm']:.2f} / {paper['div_deg']:.2f}"
+    return cell + (f" / {paper['time_256_s']:.2f} s" if "time_256_s" in paper else "")
+
+
+def with_paper(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` with the paper's Table I figures of each setting under ``paper`` (null where it has none)."""
+    return [{**row, "paper": pregrasp_paper(row["setting"])} for row in rows]
+
+
 def pregrasp_markdown(rows: list[dict[str, Any]], source: str) -> str:
-    """The table of ``rows`` with the paper's Syn row for comparison."""
+    """The table of ``rows``, each beside the paper's figures for the same setting (Table I)."""
     every = any("q1_all" in row for row in rows)  # generated rows: also the figures over every generated grasp
+    timed = any("time_256_s" in row for row in rows)
     head = "| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) ↑ | accept rate | n |"
+    extra_head = (" Q1, all generated | PN (mm), all generated |" if every else "") + (" s / 256 |" if timed else "")
     lines = [f"# Pre-grasp quality ({source})", "",
-             head + (" Q1, all generated | PN (mm), all generated |" if every else ""),
-             "|---|---|---|---|---|---|" + ("---|---|" if every else "")]
+             head + extra_head + " paper: Q1 / PN / Div" + (" / s per 256" if timed else "") + " |",
+             "|---|---|---|---|---|---|" + ("---|---|" if every else "") + ("---|" if timed else "") + "---|"]
     for row in rows:
         rate = "–" if row["accept_rate"] is None else f"{100 * row['accept_rate']:.1f} %"
         line = (f"| {row['setting']} | {_fmt(row['q1'], 3)} | {_fmt(row['pn_mm'], 2)} | "
                 f"{_fmt(row['div_deg'], 2)} | {rate} | {row['n']} |")
         if every:
             line += f" {_fmt(row.get('q1_all'), 3)} | {_fmt(row.get('pn_mm_all'), 2)} |"
-        lines.append(line)
-    paper = PAPER_GEN_ROW if source == "generated" else PAPER_SYN_ROW
-    lines.append(f"| {paper['setting']} | {paper['q1']:.2f} | {paper['pn_mm']:.2f} | {paper['div_deg']:.2f} | – | – |"
-                 + (" – | – |" if every else ""))
+        if timed:
+            line += f" {_fmt(row.get('time_256_s'), 2)} |"
+        lines.append(line + f" {_paper_cell(row['setting'])} |")
     lines += ["", "Q1: mean over accepted grasps (min over objects). PN: mean maximal penetration. "
-                  "Div: mean per-joint std of the accepted q. `–`: no accepted grasp in that setting."]
+                  "Div: mean per-joint std of the accepted q. `–`: no accepted grasp in that setting, or no such "
+                  "row in the paper (Li et al. 2024, Table I; its Syn rows are dual-object grasps)."]
     if every:
         lines += ["Generated grasps are accepted as in the paper's protocol (generator.eval_filter: PN and contact "
-                  "ratio); the last two columns are over every generated grasp."]
+                  "ratio); the 'all generated' columns are over every generated grasp."]
+    return "\n".join(lines) + "\n"
+
+
+def generator_ablation_markdown(rows: list[dict[str, Any]]) -> str:
+    """The generator ablations (Gen-Pl, kept grasps) beside the paper's Table II(a)."""
+    lines = ["## Generator ablations (Gen-Pl)", "",
+             "| setting | Q1 ↑ | PN (mm) ↓ | kept | Q1, all | PN (mm), all | paper: Q1 / PN / succ |",
+             "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        paper = row.get("paper")
+        cell = "–" if not paper else f"{paper['q1']:.2f} / {paper['pn_mm']:.2f} / {100 * paper['succ']:.1f} %"
+        kept = "–" if row.get("accept_rate") is None else f"{100 * row['accept_rate']:.1f} %"
+        lines.append(f"| {row['setting']} | {_fmt(row.get('q1'), 3)} | {_fmt(row.get('pn_mm'), 2)} | {kept} | "
+                     f"{_fmt(row.get('q1_all'), 3)} | {_fmt(row.get('pn_mm_all'), 2)} | {cell} |")
+    lines += ["", "The paper's succ column is the execution success of each generator's grasps (Table II(a)); "
+                  "this project does not lift generated grasps in its evaluation yet."]
     return "\n".join(lines) + "\n"
 
 
@@ -170,6 +198,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
     if source not in SOURCES:
         raise MultigraspError(f"unknown pre-grasp source '{source}' — choose one of {', '.join(SOURCES)}")
     rows, tags = SOURCES[source](cfg)
+    rows = with_paper(rows)
     results = cfg.run.workdir / "results"
     json_path = atomic_write_json(results / f"pregrasp_{source}.json", {"rows": rows, "source": source,
                                                                          "profile": cfg.profile, **tags})
@@ -182,8 +211,11 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
         from flows.evaluate_generated import generator_ablation_rows
 
         ablation_rows = generator_ablation_rows(cfg, ours=next((r for r in rows if r["setting"] == "Gen-Pl"), None))
+        ablation_rows = [{**r, "paper": PAPER_GENERATOR_ABLATIONS.get(r["setting"])} for r in ablation_rows]
         extra.append(atomic_write_json(results / "ablation_generator.json", {"rows": ablation_rows, "profile": cfg.profile}))
         rows_for_metrics = [{**r, "setting": f"ablation {r['setting']}"} for r in ablation_rows]
+        markdown += "\n" + generator_ablation_markdown(ablation_rows)
+        markdown_path = atomic_write_text(markdown_path, markdown)
     else:
         rows_for_metrics = []
 

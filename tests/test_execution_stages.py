@@ -160,6 +160,9 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
     assert (ablation[2]["succ"] is None) == (ablation[1]["succ"] is None) and "not in the paper" in ablation[2]["note"]
     assert ablation[2]["n_poses"] == ablation[1]["n_poses"]
     assert all(r["succ"] is None and "--ablations" in r["missing"] for r in ablation[3:])
+    # each row beside the paper's figure: Table I's specialists, Table II's ablations (none for the squeeze)
+    assert [r["paper"] for r in rows] == [0.6834, 0.2673, 0.2255]
+    assert [r["paper"] for r in ablation[:4]] == [0.6834, 0.0137, None, 0.1679]
     for setting, row in zip(("Syn-Pl", "Syn-Com", "Syn-Geo"), rows):  # per-pose outcomes, for paired comparisons
         outcomes = json.loads((workdir / "results" / "execution" / setting / "outcomes.json").read_text())
         assert outcomes["trials"] == 2 and len(outcomes["poses"]) == row["n_poses"]

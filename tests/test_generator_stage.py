@@ -125,7 +125,8 @@ def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
         assert 0 <= row["n"] <= 2 and row["accept_rate"] == row["n"] / 2
         assert (row["q1"] is None) == (row["n"] == 0)
     markdown = (workdir / "results" / "pregrasp_generated.md").read_text()
-    assert "Gen (paper, Pl)" in markdown and "all generated" in markdown
+    assert "| Gen-Com |" in markdown and "0.25 / 2.65 / 8.45 / 12.83 s |" in markdown and "all generated" in markdown
+    assert rows["Gen-Pl"]["paper"] == {"q1": 0.29, "pn_mm": 1.67, "div_deg": 9.24, "time_256_s": 12.28}
 
 
 def test_generator_ablations_file_has_the_papers_rows(trained, monkeypatch):

@@ -208,7 +208,10 @@ def test_evaluate_pregrasp_synthetic_writes_the_syn_rows(stage_runs, stage_confi
     assert rows["Syn-Geo"]["n"] == 0 and rows["Syn-Geo-singles"]["n"] == BATCH
     assert rows["Syn-Geo-singles"]["pn_mm"] >= 0
     table = (workdir / "results" / "pregrasp_synthetic.md").read_text()
-    assert "| Syn-Com |" in table and "0.30 | 1.64 | 8.54" in table
+    # every row beside the paper's figures for the same setting (Table I); rows the paper does not have: '–'
+    assert "| 0.31 / 1.78 / 8.58 |" in table.split("| Syn-Com |")[1].splitlines()[0]
+    assert table.split("| Syn-Pl-singles |")[1].splitlines()[0].endswith("| – |")
+    assert rows["Syn-Pl"]["paper"] == {"q1": 0.30, "pn_mm": 1.64, "div_deg": 8.54} and rows["Syn-train-pairs"]["paper"] is None
 
 
 @pytest.mark.slow

@@ -1,0 +1,144 @@
+"""``multigrasp report``: a work dir's evaluation results beside the paper's Tables I and II, in one file.
+
+It reads what ``evaluate`` wrote under ``<workdir>/results/`` (``pregrasp_synthetic.json``,
+``pregrasp_generated.json``, ``execution.json``, ``ablation_generator.json``, ``ablation_execution.json``) and
+writes ``results/report.md``: Table I's rows (Syn / Gen × Pl / Com / Geo: Q1, PN, Div, time per 256, success) and
+Table II's ablations, each cell as ``this run (paper)``.  A table whose evaluation has not run names the command
+that makes it; every source says which profile and when it was evaluated, since one work dir can hold several
+profiles' runs and ``results/`` keeps the latest evaluation of each kind.  Nothing is recomputed.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from components.errors import MultigraspError
+from flows.paper import (PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
+from tasks.artifacts import atomic_write_text
+
+#: results file → the command that writes it.
+SOURCES = {
+    "pregrasp_synthetic.json": "multigrasp evaluate pregrasp --source synthetic",
+    "pregrasp_generated.json": "multigrasp evaluate pregrasp --source generated",
+    "execution.json": "multigrasp evaluate execution",
+    "ablation_generator.json": "multigrasp evaluate pregrasp --source generated --ablations",
+    "ablation_execution.json": "multigrasp evaluate execution --ablations",
+}
+
+
+@dataclass
+class Report:
+    path: Path
+    markdown: str
+    missing: list[str]
+    """The results files not found (their commands are in the report)."""
+
+
+def _load(results: Path, name: str) -> dict[str, Any] | None:
+    path = results / name
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise MultigraspError(f"{path} is not readable JSON ({type(exc).__name__}) — run `{SOURCES[name]}` again "
+                              "to rewrite it") from None
+    if not isinstance(data, dict) or not isinstance(data.get("rows"), list):
+        raise MultigraspError(f"{path} has no 'rows' list — run `{SOURCES[name]}` again to rewrite it")
+    data["_written"] = datetime.datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
+    return data
+
+
+def _rows(data: dict[str, Any] | None) -> dict[str, dict[str, Any]]:
+    return {row.get("setting"): row for row in (data or {}).get("rows", [])}
+
+
+def _num(value: Any, digits: int) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def _pct(value: Any) -> str:
+    return "–" if value is None else f"{100 * value:.1f} %"
+
+
+def _cell(here: str, paper: str) -> str:
+    return f"{here} ({paper})"
+
+
+def table_one(pregrasp: dict[str, dict], execution: dict[str, dict]) -> list[str]:
+    """Table I: pre-grasp quality and execution success per setting, this run (paper)."""
+    lines = ["| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) | s per 256 ↓ | succ ↑ | accepted / kept | n |",
+             "|---|---|---|---|---|---|---|---|"]
+    for setting, paper in PAPER_PREGRASP.items():
+        row = pregrasp.get(setting, {})
+        time_here = _num(row.get("time_256_s"), 2)
+        time_paper = _num(paper.get("time_256_s"), 2) if "time_256_s" in paper else "≈ 1000 total"
+        succ_row = execution.get(setting, {})
+        lines.append(
+            f"| {setting} | {_cell(_num(row.get('q1'), 3), _num(paper['q1'], 2))} | "
+            f"{_cell(_num(row.get('pn_mm'), 2), _num(paper['pn_mm'], 2))} | "
+            f"{_cell(_num(row.get('div_deg'), 2), _num(paper['div_deg'], 2))} | {_cell(time_here, time_paper)} | "
+            f"{_cell(_pct(succ_row.get('succ')), _pct(PAPER_EXECUTION.get(setting)))} | "
+            f"{_pct(row.get('accept_rate'))} | {row.get('n', '–')} |")
+    return lines
+
+
+def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: dict[str, Any]) -> list[str]:
+    """Table II: the generator's ablations (a) and the execution ablations (b, c), this run (paper)."""
+    lines = ["**(a) Generative model** (Gen-Pl, grasps kept by the protocol filter)", "",
+             "| setting | Q1 ↑ | PN (mm) ↓ | kept | paper succ |", "|---|---|---|---|---|"]
+    for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
+        row = generator.get(setting, {})
+        lines.append(f"| {setting} | {_cell(_num(row.get('q1'), 3), _num(paper['q1'], 2))} | "
+                     f"{_cell(_num(row.get('pn_mm'), 2), _num(paper['pn_mm'], 2))} | {_pct(row.get('accept_rate'))} | "
+                     f"{_pct(paper['succ'])} |")
+    lines += ["", "**(b, c) Execution** (this run: Syn-Pl pre-grasps; the paper's bases are in the last column)", "",
+              "| setting | succ ↑ | paper's base |", "|---|---|---|"]
+    ours = execution.get("Ours", syn_pl)
+    lines.append(f"| Ours | {_cell(_pct(ours.get('succ')), _pct(PAPER_EXECUTION['Syn-Pl']))} | Table I, Syn-Pl |")
+    for setting, paper in PAPER_EXECUTION_ABLATIONS.items():
+        row = execution.get(setting, {})
+        lines.append(f"| {setting} | {_cell(_pct(row.get('succ')), _pct(paper['succ']))} | {paper['base']} |")
+    for setting, row in execution.items():
+        if setting not in PAPER_EXECUTION_ABLATIONS and setting != "Ours":
+            lines.append(f"| {setting} | {_pct(row.get('succ'))} | not in the paper |")
+    return lines
+
+
+def write_report(workdir: Path) -> Report:
+    """Write ``<workdir>/results/report.md`` from the evaluation results there (module docstring)."""
+    results = Path(workdir) / "results"
+    if not results.is_dir():
+        raise MultigraspError(f"no results in {workdir} (no results/ folder) — run `multigrasp evaluate …` first, or "
+                              "pass the --workdir that holds them")
+    data = {name: _load(results, name) for name in SOURCES}
+    missing = [name for name, value in data.items() if value is None]
+    if len(missing) == len(SOURCES):
+        raise MultigraspError(f"no evaluation results in {results} — run `{SOURCES['pregrasp_synthetic.json']}` (and "
+                              "the other `multigrasp evaluate` commands) first")
+    pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
+    execution = _rows(data["execution.json"])
+    ablation_execution = _rows(data["ablation_execution.json"])
+    lines = ["# This work dir against the paper", "",
+             f"Work dir `{Path(workdir).resolve()}`. Each cell: this run (the paper's figure, Li et al., RA-L 2024). "
+             "`–`: not measured here, or not in the paper.", "", "## Sources", "",
+             "| results file | profile | evaluated | command |", "|---|---|---|---|"]
+    for name, value in data.items():
+        if value is None:
+            lines.append(f"| {name} | – | not yet | `{SOURCES[name]}` |")
+        else:
+            lines.append(f"| {name} | {value.get('profile', '?')} | {value['_written']} | `{SOURCES[name]}` |")
+    lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(pregrasp, execution)
+    lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
+                  "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
+                  "above 10 cm), 5 trials per pose. The paper's Gen succ rows are specialists on generated grasps; "
+                  "this project's execution evaluation lifts synthesised ones."]
+    lines += ["", "## Table II: ablations", ""] + table_two(_rows(data["ablation_generator.json"]), ablation_execution,
+                                                          execution.get("Syn-Pl", {}))
+    markdown = "\n".join(lines) + "\n"
+    path = atomic_write_text(results / "report.md", markdown)
+    return Report(path=path, markdown=markdown, missing=missing)

@@ -1,0 +1,74 @@
+"""``multigrasp report`` and the paper's figures beside every evaluation table (flows/paper.py)."""
+
+from __future__ import annotations
+
+import json
+
+from flows.cli import main
+from flows.evaluate import pregrasp_markdown, with_paper
+from flows.evaluate_execution import execution_markdown
+from flows.paper import PAPER_PREGRASP, execution_paper
+from flows.report import SOURCES, write_report
+
+
+def _write(results, name, rows, profile="bench"):
+    results.mkdir(parents=True, exist_ok=True)
+    (results / name).write_text(json.dumps({"rows": rows, "profile": profile}))
+
+
+def test_the_papers_tables_as_data():
+    # Table I of the paper, as printed: Syn / Gen x Pl / Com / Geo
+    assert PAPER_PREGRASP["Syn-Pl"] == {"q1": 0.30, "pn_mm": 1.64, "div_deg": 8.54}
+    assert PAPER_PREGRASP["Gen-Com"]["time_256_s"] == 12.83
+    assert execution_paper("Syn-Pl") == 0.6834 and execution_paper("Syn-Geo") == 0.2255
+    assert execution_paper("w/o RL") == 0.0137 and execution_paper("Scripted squeeze-lift") is None
+
+
+def test_each_table_row_stands_beside_the_papers_figure():
+    rows = with_paper([{"setting": "Syn-Pl", "q1": 0.084, "pn_mm": 1.09, "div_deg": 14.3, "accept_rate": 0.456,
+                        "n": 541},
+                       {"setting": "Syn-train-pairs", "q1": None, "pn_mm": None, "div_deg": None,
+                        "accept_rate": None, "n": 0}])
+    assert rows[0]["paper"]["q1"] == 0.30 and rows[1]["paper"] is None
+    table = pregrasp_markdown(rows, "synthetic")
+    assert "| Syn-Pl | 0.084 | 1.09 | 14.30 | 45.6 % | 541 | 0.30 / 1.64 / 8.54 |" in table
+    assert "| Syn-train-pairs | – | – | – | – | 0 | – |" in table
+    execution = execution_markdown([{"setting": "Syn-Com", "succ": 0.302, "n_poses": 100, "trials": 5}],
+                                   [{"setting": "Ours", "succ": 0.306}, {"setting": "w/o Goal", "succ": None,
+                                                                         "missing": "run with --ablations"}],
+                                   "accepted")
+    assert "| Syn-Com | 30.2 % | 100 x 5 | 26.7 % |" in execution
+    assert "| Ours | 30.6 % | 68.3 % |" in execution and "| w/o Goal | — | 16.8 % | run with --ablations |" in execution
+    assert "Ours* 45.25 % on a subset of objects" in execution  # the paper's ablation base is said
+
+
+def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp_path, capsys):
+    results = tmp_path / "results"
+    _write(results, "pregrasp_synthetic.json", [{"setting": "Syn-Pl", "q1": 0.084, "pn_mm": 1.09, "div_deg": 14.3,
+                                                 "accept_rate": 0.456, "n": 541}])
+    _write(results, "execution.json", [{"setting": "Syn-Pl", "succ": 0.306, "n_poses": 100, "trials": 5}])
+    _write(results, "ablation_execution.json", [{"setting": "Ours", "succ": 0.306},
+                                                {"setting": "w/o RL", "succ": 0.004},
+                                                {"setting": "Scripted squeeze-lift", "succ": 0.298}])
+    assert main(["report", "--workdir", str(tmp_path)]) == 0
+    text = (results / "report.md").read_text()
+    assert "| Syn-Pl | 0.084 (0.30) | 1.09 (1.64) | 14.30 (8.54) |" in text and "| 30.6 % (68.3 %) |" in text
+    assert "| w/o RL | 0.4 % (1.4 %) |" in text and "| Scripted squeeze-lift | 29.8 % | not in the paper |" in text
+    assert "| pregrasp_synthetic.json | bench |" in text
+    for name in ("pregrasp_generated.json", "ablation_generator.json"):  # not evaluated: the command that makes it
+        assert f"| {name} | – | not yet | `{SOURCES[name]}` |" in text
+    report = write_report(tmp_path)
+    assert report.missing == ["pregrasp_generated.json", "ablation_generator.json"]
+
+
+def test_report_errors_are_one_line(tmp_path, capsys):
+    assert main(["report", "--workdir", str(tmp_path / "nowhere")]) == 2
+    assert "no results in" in capsys.readouterr().err
+    (tmp_path / "results").mkdir()
+    assert main(["report", "--workdir", str(tmp_path)]) == 2
+    assert "no evaluation results" in capsys.readouterr().err
+    (tmp_path / "results" / "execution.json").write_text("{truncated")
+    assert main(["report", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "execution.json is not readable JSON" in err and "multigrasp evaluate execution" in err
+    assert "\n" not in err
