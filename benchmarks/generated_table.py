@@ -21,54 +21,27 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from benchmarks.grasp_tables import finish_tool
 from components.errors import MultigraspError
 
 
 def run(cfg, split: str, scenes: int, out: Path, checkpoint: Path | None) -> dict:
     """Generate, score and write the table (module docstring); the JSON-able summary."""
-    import pandas as pd
-
-    from components.generation import load_generator
     from components.hand import HandModel
     from components.objects import ObjectLibrary
-    from flows.evaluate_generated import generate_for_scene, score_generated
-    from flows.pipeline import stage_output
+    from flows.evaluate_generated import generated_table, load_generator_for
     from tasks.preflight import cache_dir
     from tasks.synthesize import read_scene_records
 
-    scenes_stage = stage_output(cfg, "scenes")
-    generator = stage_output(cfg, "train-generator") if checkpoint is None else None
-    if scenes_stage is None:
-        raise MultigraspError("no scenes stage for this config — run `multigrasp run --until scenes` first")
-    if checkpoint is None and generator is None:
-        raise MultigraspError("no trained generator for this config — run `multigrasp run --until train-generator` "
-                              "first, or pass --checkpoint")
+    scenes_stage, generator, model = load_generator_for(cfg, checkpoint, "benchmarks.generated_table")
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
     picked = [r for r in read_scene_records(scenes_stage)
               if r["split"] == split and len(r["objects"]) <= cfg.generator.model.max_objects][:scenes]
     if not picked:
         raise MultigraspError(f"no scenes of split {split} in this config's scenes stage — choose another --split")
-    rows = []
-    for number, record in enumerate(picked):
-        objects, refined, seconds = generate_for_scene(cfg, model, hand, library, record, number)
-        q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
-        scene = objects.scene
-        for i in range(refined.p.shape[0]):
-            rows.append({"scene_id": record["id"], "split": split, "combination": "+".join(scene.names), "row": i,
-                         "object_names": list(scene.names),
-                         "object_positions": np.concatenate([pl.position for pl in scene.objects]).tolist(),
-                         "object_quats_xyzw": np.concatenate([pl.quat_xyzw for pl in scene.objects]).tolist(),
-                         "p": refined.p[i].tolist(), "R": refined.R[i].reshape(-1).tolist(),
-                         "q": refined.q[i].tolist(), "accepted": bool(kept[i]), "q1": float(q1[i]),
-                         "pn_mm": float(pn[i]), "contact_ratio": float(ratio[i])})
-        print(f"generated table: scene {number + 1}/{len(picked)} ({refined.p.shape[0]} grasps in {seconds:.1f}s)",
-              file=sys.stderr, flush=True)
-    frame = pd.DataFrame(rows)
+    frame, _ = generated_table(cfg, model, hand, library, picked,
+                               progress=lambda line: print(f"generated table: {line}", file=sys.stderr, flush=True))
     out.parent.mkdir(parents=True, exist_ok=True)
     frame.to_parquet(out)
     accepted = frame[frame["accepted"]]

@@ -140,10 +140,11 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True, reach_memo: dict | None = None,
-                   say: Callable[[str], None] | None = None, title: str = "") -> SplitResult:
+                   say: Callable[[str], None] | None = None, title: str = "", records: list | None = None) -> SplitResult:
     """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
     ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`).  ``say``: receives a
-    progress line (counts, elapsed, ETA) as each specialist's poses finish."""
+    progress line (counts, elapsed, ETA) as each specialist's poses finish.  ``records``: the pre-grasps to lift
+    instead of the synthesize stage's (generated ones)."""
     from components.execution.clustering import bin_label
     from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
@@ -164,8 +165,9 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     groups: dict[str, list] = {}
     out = SplitResult()
     squeeze = squeeze_lift(stage, hand.actuated_joint_names) if scripted else None
-    records = [r for r in select_records(outputs["synthesize"], stage, [split])
-               if len(r.scene.objects) == EVALUATED_OBJECTS]
+    if records is None:
+        records = select_records(outputs["synthesize"], stage, [split])
+    records = [r for r in records if len(r.scene.objects) == EVALUATED_OBJECTS]
     for record in spread_records(records, stage.eval_poses):
         label = bin_label(record, stage.clustering)
         match = matching_specialist(label, index)

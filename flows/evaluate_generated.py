@@ -101,6 +101,54 @@ def generate_for_scene(cfg: PipelineConfig, model, hand, library, record: dict[s
     return objects, refined, time.perf_counter() - start
 
 
+def generated_table(cfg: PipelineConfig, model, hand, library, scene_records: list[dict[str, Any]],
+                    progress: Callable[[str], None] | None = None):
+    """Generated, refined and scored grasps of ``scene_records`` (scenes-stage records; the ``number`` of
+    :func:`generate_for_scene` is each record's index here) as a frame in the synthesis table's layout
+    (``scene_id``, ``split``, ``combination``, ``row``, object names / positions / quaternions, ``p``, ``R``, ``q``,
+    ``accepted`` = kept by ``generator.eval_filter``, ``q1``, ``pn_mm``, ``contact_ratio``; no chosen contacts), so
+    that what reads a synthesis table's rows (:func:`tasks.specialists.records_from_table`, the grasp-table tools)
+    reads generated grasps the same way.  -> (frame, seconds of generation, IK and refinement)."""
+    import pandas as pd
+
+    rows, seconds = [], 0.0
+    for number, record in enumerate(scene_records):
+        objects, refined, elapsed = generate_for_scene(cfg, model, hand, library, record, number)
+        seconds += elapsed
+        q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
+        scene = objects.scene
+        for i in range(refined.p.shape[0]):
+            rows.append({"scene_id": record["id"], "split": record["split"], "combination": "+".join(scene.names),
+                         "row": i, "object_names": list(scene.names),
+                         "object_positions": np.concatenate([pl.position for pl in scene.objects]).tolist(),
+                         "object_quats_xyzw": np.concatenate([pl.quat_xyzw for pl in scene.objects]).tolist(),
+                         "p": refined.p[i].tolist(), "R": refined.R[i].reshape(-1).tolist(),
+                         "q": refined.q[i].tolist(), "accepted": bool(kept[i]), "q1": float(q1[i]),
+                         "pn_mm": float(pn[i]), "contact_ratio": float(ratio[i])})
+        if progress is not None:
+            progress(f"generated scene {number + 1}/{len(scene_records)} ({refined.p.shape[0]} grasps, "
+                     f"{int(kept.sum())} kept, {elapsed:.1f}s)")
+    return pd.DataFrame(rows), seconds
+
+
+def load_generator_for(cfg: PipelineConfig, checkpoint: Path | None = None, purpose: str = "this command"):
+    """The scenes stage's manifest and the generator (the config's train-generator stage, or ``checkpoint``), with
+    one-line errors naming the command that makes what is missing."""
+    from components.generation import load_generator
+    from flows.pipeline import stage_output
+
+    scenes = stage_output(cfg, "scenes")
+    if scenes is None:
+        raise MultigraspError(f"{purpose} needs the scenes stage for this config — run `multigrasp run --until scenes` "
+                              "first (same --profile / --config / --set)")
+    generator = stage_output(cfg, "train-generator") if checkpoint is None else None
+    if checkpoint is None and generator is None:
+        raise MultigraspError(f"{purpose} needs a trained generator for this config — run `multigrasp run --until "
+                              "train-generator` first (same --profile / --config / --set)")
+    model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
+    return scenes, generator, model
+
+
 def score_generated(cfg: PipelineConfig, hand, objects, refined):
     """Q1, PN (mm), contact ratio and the paper's protocol filter (``generator.eval_filter``) of one scene's refined
     grasps (:func:`generate_for_scene`). -> q1, pn_mm, contact_ratio (B,) float tensors and kept (B,) bool."""
@@ -127,26 +175,16 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     ``progress`` gets one line per scene (setting, scene k/n, elapsed, ETA; stderr by default)."""
     import pandas as pd
 
-    from components.generation import load_generator
     from components.hand import HandModel
     from components.objects import ObjectLibrary
     from flows.evaluate import Setting, setting_row
-    from flows.pipeline import stage_output
     from tasks.preflight import cache_dir
     from tasks.synthesize import read_scene_records
 
-    generator = stage_output(cfg, "train-generator") if checkpoint is None else None
-    scenes = stage_output(cfg, "scenes")
-    if scenes is None:
-        raise MultigraspError("evaluate pregrasp --source generated needs the scenes stage for this config — run "
-                              "`multigrasp run --until scenes` first (same --profile / --config / --set)")
-    if checkpoint is None and generator is None:
-        raise MultigraspError("evaluate pregrasp --source generated needs a trained generator for this config — run "
-                              "`multigrasp run --until train-generator` first (same --profile / --config / --set)")
+    scenes, generator, model = load_generator_for(cfg, checkpoint, "evaluate pregrasp --source generated")
     stage = cfg.generator
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    model = load_generator(generator.path("generator") if checkpoint is None else checkpoint)
     records = read_scene_records(scenes)
     rows = []
     plan = [(name, split, [r for r in records if r["split"] == split

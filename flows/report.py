@@ -1,9 +1,9 @@
 """``multigrasp report``: a work dir's evaluation results beside the paper's Tables I and II, in one file.
 
 It reads what ``evaluate`` wrote under ``<workdir>/results/`` (``pregrasp_synthetic.json``,
-``pregrasp_generated.json``, ``execution.json``, ``ablation_generator.json``, ``ablation_execution.json``) and
-writes ``results/report.md``: Table I's rows (Syn / Gen × Pl / Com / Geo: Q1, PN, Div, time per 256, success) and
-Table II's ablations, each cell as ``this run (paper)``.  A table whose evaluation has not run names the command
+``pregrasp_generated.json``, ``execution.json``, ``ablation_generator.json``, ``ablation_execution.json``,
+``execution_generated.json``) and writes ``results/report.md``: Table I's rows (Syn / Gen × Pl / Com / Geo: Q1,
+PN, Div, time per 256, success) and Table II's ablations, each cell as ``this run (paper)``.  A table whose evaluation has not run names the command
 that makes it; every source says which profile and when it was evaluated, since one work dir can hold several
 profiles' runs and ``results/`` keeps the latest evaluation of each kind.  Nothing is recomputed.
 """
@@ -25,6 +25,7 @@ SOURCES = {
     "pregrasp_synthetic.json": "multigrasp evaluate pregrasp --source synthetic",
     "pregrasp_generated.json": "multigrasp evaluate pregrasp --source generated",
     "execution.json": "multigrasp evaluate execution",
+    "execution_generated.json": "multigrasp evaluate execution --source generated",
     "ablation_generator.json": "multigrasp evaluate pregrasp --source generated --ablations",
     "ablation_execution.json": "multigrasp evaluate execution --ablations",
 }
@@ -121,7 +122,7 @@ def write_report(workdir: Path) -> Report:
         raise MultigraspError(f"no evaluation results in {results} — run `{SOURCES['pregrasp_synthetic.json']}` (and "
                               "the other `multigrasp evaluate` commands) first")
     pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
-    execution = _rows(data["execution.json"])
+    execution = {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])}
     ablation_execution = _rows(data["ablation_execution.json"])
     lines = ["# This work dir against the paper", "",
              f"Work dir `{Path(workdir).resolve()}`. Each cell: this run (the paper's figure, Li et al., RA-L 2024). "
@@ -135,8 +136,8 @@ def write_report(workdir: Path) -> Report:
     lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(pregrasp, execution)
     lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
                   "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
-                  "above 10 cm), 5 trials per pose. The paper's Gen succ rows are specialists on generated grasps; "
-                  "this project's execution evaluation lifts synthesised ones."]
+                  "above 10 cm), 5 trials per pose; the Gen rows' are the same specialists lifting the generator's "
+                  "kept pre-grasps, as the paper's."]
     lines += ["", "## Table II: ablations", ""] + table_two(_rows(data["ablation_generator.json"]), ablation_execution,
                                                           execution.get("Syn-Pl", {}))
     markdown = "\n".join(lines) + "\n"

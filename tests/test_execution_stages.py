@@ -180,6 +180,31 @@ def test_evaluate_execution_writes_the_success_tables(runs, tmp_path, capsys):
         assert "policy: 1/1 poses" in err and "squeeze: 1/1 poses" in err  # a line per pose of each pass here
 
 
+def test_evaluate_execution_of_generated_pre_grasps_writes_the_gen_rows(runs, capsys):
+    """The paper's Gen succ rows: the generator's kept pre-grasps lifted by the same specialists; the report reads
+    them."""
+    workdir, _, _ = runs
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = _evaluate_argv(workdir, config, "specialists.eval_poses=1", "specialists.eval_trials=2",
+                          "generator.eval_scenes=1", "generator.eval_grasps_per_scene=2", "generator.refine.fc_steps=2",
+                          "generator.eval_filter.enabled=false")
+    assert main([*argv, "--source", "generated"]) == 0
+    rows = {r["setting"]: r for r in json.loads((workdir / "results" / "execution_generated.json").read_text())["rows"]}
+    assert list(rows) == ["Gen-Pl", "Gen-Com", "Gen-Geo"]
+    assert rows["Gen-Pl"]["generated"] == 0  # this config has no Pl scenes
+    com = rows["Gen-Com"]  # one Com pair scene, 2 generated grasps, the filter open: both kept, one lifted
+    assert com["generated"] == com["kept"] == 2 and com["n_poses"] + com["unmatched_poses"] == 1
+    assert com["succ"] is None or 0.0 <= com["succ"] <= 1.0
+    assert com["paper"] == 0.2332 and rows["Gen-Pl"]["paper"] == 0.4020
+    outcomes = json.loads((workdir / "results" / "execution_generated" / "Gen-Com" / "outcomes.json").read_text())
+    assert len(outcomes["poses"]) == com["n_poses"]
+    assert "| Gen-Com |" in capsys.readouterr().out
+    assert main([*argv, "--source", "generated", "--ablations"]) == 2
+    assert "--ablations applies to" in capsys.readouterr().err
+    assert main(["report", "--workdir", str(workdir)]) == 0
+    assert "| execution_generated.json | smoke |" in (workdir / "results" / "report.md").read_text()
+
+
 def test_evaluation_progress_says_a_line_every_k_poses_of_each_pass_with_an_eta():
     from flows.evaluate_execution import _Progress
 

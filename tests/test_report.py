@@ -55,10 +55,10 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
     assert "| Syn-Pl | 0.084 (0.30) | 1.09 (1.64) | 14.30 (8.54) |" in text and "| 30.6 % (68.3 %) |" in text
     assert "| w/o RL | 0.4 % (1.4 %) |" in text and "| Scripted squeeze-lift | 29.8 % | not in the paper |" in text
     assert "| pregrasp_synthetic.json | bench |" in text
-    for name in ("pregrasp_generated.json", "ablation_generator.json"):  # not evaluated: the command that makes it
+    for name in ("pregrasp_generated.json", "ablation_generator.json", "execution_generated.json"):  # not evaluated: the command
         assert f"| {name} | – | not yet | `{SOURCES[name]}` |" in text
     report = write_report(tmp_path)
-    assert report.missing == ["pregrasp_generated.json", "ablation_generator.json"]
+    assert report.missing == ["pregrasp_generated.json", "execution_generated.json", "ablation_generator.json"]
 
 
 def test_report_errors_are_one_line(tmp_path, capsys):
