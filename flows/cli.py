@@ -273,7 +273,18 @@ def _cmd_status(args: argparse.Namespace) -> int:
     for row in status(cfg):
         table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
                       row.folder or "-", row.detail)
-    Console().print(table)
+    console = Console()
+    console.print(table)
+    if (cfg.run.workdir / "results").is_dir():
+        from flows.report import evaluation_status
+
+        results = Table(title=f"evaluations in {cfg.run.workdir / 'results'}")
+        for col in ("results file", "state", "note"):
+            results.add_column(col)
+        shades = {"current": "green", "stale": "magenta", "unknown": "yellow", "missing": "white"}
+        for row in evaluation_status(cfg):
+            results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
+        console.print(results)
     return 0
 
 

@@ -143,3 +143,60 @@ def write_report(workdir: Path) -> Report:
     markdown = "\n".join(lines) + "\n"
     path = atomic_write_text(results / "report.md", markdown)
     return Report(path=path, markdown=markdown, missing=missing)
+
+
+#: results file → (the provenance field naming a stage output's manifest, that stage), for :func:`evaluation_status`.
+EVALUATED_FROM = {
+    "pregrasp_synthetic.json": [("synthesize_manifest", "synthesize")],
+    "pregrasp_generated.json": [("generator_manifest", "train-generator")],
+    "execution.json": [("specialists_manifest", "specialists")],
+    "execution_generated.json": [("specialists_manifest", "specialists"), ("generator_manifest", "train-generator")],
+    "ablation_execution.json": [("specialists_manifest", "specialists")],
+    "ablation_generator.json": [],
+}
+
+
+@dataclass
+class EvaluationStatus:
+    name: str
+    state: str  # current | stale | unknown | missing
+    detail: str
+
+
+def evaluation_status(cfg) -> list[EvaluationStatus]:
+    """Whether each evaluation under ``results/`` was made from this config's stage outputs now (``current``), from
+    others (``stale``: a stage was recomputed, or another config evaluated last), or cannot say (``unknown``).  Stage
+    outputs are compared by their unit key (the folder name), so a moved work dir stays current."""
+    from flows.pipeline import stage_output
+
+    results = cfg.run.workdir / "results"
+    outputs: dict[str, Any] = {}
+    rows = []
+    for name, command in SOURCES.items():
+        path = results / name
+        if not path.is_file():
+            rows.append(EvaluationStatus(name, "missing", f"`{command}`"))
+            continue
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            rows.append(EvaluationStatus(name, "unknown", f"unreadable — run `{command}` again"))
+            continue
+        checks = EVALUATED_FROM[name]
+        stale = []
+        for field_name, stage in checks:
+            if stage not in outputs:
+                outputs[stage] = stage_output(cfg, stage)
+            made_from = data.get(field_name)
+            now = outputs[stage]
+            if not made_from or now is None or Path(made_from).parent.name != Path(now.folder).name:
+                stale.append(stage)
+        profile = data.get("profile", "?")
+        if not checks:
+            rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records no stage output"))
+        elif stale:
+            rows.append(EvaluationStatus(name, "stale", f"profile {profile}; not from this config's {', '.join(stale)} "
+                                                        f"output now — run `{command}` again"))
+        else:
+            rows.append(EvaluationStatus(name, "current", f"profile {profile}"))
+    return rows

@@ -72,3 +72,35 @@ def test_report_errors_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "execution.json is not readable JSON" in err and "multigrasp evaluate execution" in err
     assert "\n" not in err
+
+
+def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch):
+    """An evaluation is current while the stage output it was made from is this config's output now (compared by
+    unit key, so a moved work dir stays current); another config's or an older output makes it stale."""
+    import flows.pipeline
+    from flows.config import load_config
+    from flows.report import evaluation_status
+
+    cfg = load_config("smoke", workdir=tmp_path)
+    now = {"synthesize": tmp_path / "stages" / "synthesize" / "aaaa", "specialists": tmp_path / "stages" / "specialists" / "bbbb"}
+
+    class Out:
+        def __init__(self, folder):
+            self.folder = str(folder)
+
+    monkeypatch.setattr(flows.pipeline, "stage_output",
+                        lambda c, stage: Out(now[stage]) if stage in now else None)
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "pregrasp_synthetic.json").write_text(json.dumps(
+        {"rows": [], "profile": "smoke", "synthesize_manifest": "/elsewhere/stages/synthesize/aaaa/manifest.json"}))
+    (results / "execution.json").write_text(json.dumps(
+        {"rows": [], "profile": "bench", "specialists_manifest": str(tmp_path / "stages/specialists/cccc/manifest.json")}))
+    (results / "execution_generated.json").write_text(json.dumps(
+        {"rows": [], "profile": "smoke", "specialists_manifest": str(now["specialists"] / "manifest.json"),
+         "generator_manifest": "x/manifest.json"}))
+    states = {r.name: (r.state, r.detail) for r in evaluation_status(cfg)}
+    assert states["pregrasp_synthetic.json"][0] == "current"  # a moved work dir: same key
+    assert states["execution.json"][0] == "stale" and "multigrasp evaluate execution" in states["execution.json"][1]
+    assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
+    assert states["pregrasp_generated.json"][0] == "missing"
