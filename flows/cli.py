@@ -293,7 +293,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     report = write_report(args.workdir)
     print(report.markdown)
-    print(f"written: {report.path}")
+    print(f"written: {report.path}  {report.csv_path}  (MLflow run {report.run_id})")
     return 0
 
 

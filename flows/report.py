@@ -37,6 +37,9 @@ class Report:
     markdown: str
     missing: list[str]
     """The results files not found (their commands are in the report)."""
+    csv_path: Path | None = None
+    run_id: str | None = None
+    """The MLflow run the report and its CSV were logged to."""
 
 
 def _load(results: Path, name: str) -> dict[str, Any] | None:
@@ -142,7 +145,55 @@ def write_report(workdir: Path) -> Report:
                                                           execution.get("Syn-Pl", {}))
     markdown = "\n".join(lines) + "\n"
     path = atomic_write_text(results / "report.md", markdown)
-    return Report(path=path, markdown=markdown, missing=missing)
+    csv_path = atomic_write_text(results / "report.csv", report_csv(pregrasp, execution, ablation_execution,
+                                                                    _rows(data["ablation_generator.json"])))
+    return Report(path=path, markdown=markdown, missing=missing, csv_path=csv_path,
+                  run_id=_log_report(workdir, path, csv_path, data))
+
+
+def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
+               generator: dict[str, dict]) -> str:
+    """The report's figures as long-format CSV: ``table,setting,metric,here,paper`` (empty where not measured)."""
+    import csv
+    import io
+
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["table", "setting", "metric", "here", "paper"])
+
+    def put(table: str, setting: str, metric: str, here: Any, paper: Any) -> None:
+        writer.writerow([table, setting, metric, "" if here is None else here, "" if paper is None else paper])
+
+    for setting, paper in PAPER_PREGRASP.items():
+        row = pregrasp.get(setting, {})
+        for metric in ("q1", "pn_mm", "div_deg", "time_256_s", "accept_rate"):
+            put("I", setting, metric, row.get(metric), paper.get(metric))
+        put("I", setting, "succ", execution.get(setting, {}).get("succ"), PAPER_EXECUTION.get(setting))
+    for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
+        row = generator.get(setting, {})
+        for metric in ("q1", "pn_mm"):
+            put("II(a)", setting, metric, row.get(metric), paper[metric])
+    put("II(b,c)", "Ours", "succ", ablation_execution.get("Ours", execution.get("Syn-Pl", {})).get("succ"),
+        PAPER_EXECUTION["Syn-Pl"])
+    for setting, paper in PAPER_EXECUTION_ABLATIONS.items():
+        put("II(b,c)", setting, "succ", ablation_execution.get(setting, {}).get("succ"), paper["succ"])
+    return out.getvalue()
+
+
+def _log_report(workdir: Path, markdown: Path, csv_path: Path, data: dict[str, Any]) -> str:
+    """A run ``report`` in the work dir's MLflow store (or ``MLFLOW_TRACKING_URI``'s) with both files, tagged with the
+    profile of each source."""
+    from flows.config import TrackingConfig
+    from tasks.tracking import Tracker, default_tracking_uri
+
+    tracker = Tracker(default_tracking_uri(Path(workdir)), TrackingConfig().experiment, Path(workdir))
+    tags = {"command": "report", **{f"source.{name}": value.get("profile", "?")
+                                    for name, value in data.items() if value is not None}}
+    run_id = tracker.start_run("report", tags=tags)
+    for path in (markdown, csv_path):
+        tracker.log_artifact(run_id, path, "results")
+    tracker.end_run(run_id)
+    return run_id
 
 
 #: results file → (the provenance field naming a stage output's manifest, that stage), for :func:`evaluation_status`.

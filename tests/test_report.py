@@ -59,6 +59,20 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
         assert f"| {name} | – | not yet | `{SOURCES[name]}` |" in text
     report = write_report(tmp_path)
     assert report.missing == ["pregrasp_generated.json", "execution_generated.json", "ablation_generator.json"]
+    # the same figures as CSV (table, setting, metric, here, paper), both logged to an MLflow run of their own
+    import csv
+
+    rows = {(r["table"], r["setting"], r["metric"]): r for r in csv.DictReader(report.csv_path.open())}
+    assert rows[("I", "Syn-Pl", "q1")]["here"] == "0.084" and rows[("I", "Syn-Pl", "q1")]["paper"] == "0.3"
+    assert rows[("I", "Syn-Pl", "succ")]["here"] == "0.306" and rows[("I", "Gen-Pl", "succ")]["here"] == ""
+    assert rows[("II(b,c)", "w/o RL", "succ")]["here"] == "0.004"
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    run = client.get_run(report.run_id)
+    assert run.data.tags["command"] == "report" and run.data.tags["source.execution.json"] == "bench"
+    assert sorted(a.path for a in client.list_artifacts(report.run_id, "results")) == ["results/report.csv",
+                                                                                       "results/report.md"]
 
 
 def test_report_errors_are_one_line(tmp_path, capsys):
