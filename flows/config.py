@@ -47,7 +47,8 @@ class RunConfig(Section):
     device: Literal["cpu", "cuda"] = Field("cpu", description="Torch device for model code.")
     runner: Literal["threads", "processes", "ray"] = Field(
         "threads", description="Prefect task runner used for fan-out (shards, specialists, evaluation).")
-    max_workers: int = Field(2, ge=1, le=512, description="Parallel workers of the task runner.")
+    max_workers: int = Field(2, ge=1, le=512, description="Parallel workers of the task runner, and the processes "
+                             "that lift an evaluation's poses (`evaluate execution`; at most the machine's cores).")
     torch_threads: int = Field(0, ge=0, le=512, description="torch.set_num_threads for the run (0 = torch default); 1 when workers share few cores.")
     seed: int = Field(0, ge=0, description="Base random seed; every unit derives its own seed from it.")
     ray_address: str | None = Field(None, description="Ray cluster address for runner=ray (None = start a local Ray).")

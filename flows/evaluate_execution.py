@@ -25,6 +25,7 @@ markdown table, are logged to their own MLflow run.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import time
@@ -140,15 +141,15 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True, reach_memo: dict | None = None,
-                   say: Callable[[str], None] | None = None, title: str = "", records: list | None = None) -> SplitResult:
+                   say: Callable[[str], None] | None = None, title: str = "", records: list | None = None,
+                   pool=None) -> SplitResult:
     """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
     ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`).  ``say``: receives a
     progress line (counts, elapsed, ETA) as each specialist's poses finish.  ``records``: the pre-grasps to lift
-    instead of the synthesize stage's (generated ones)."""
+    instead of the synthesize stage's (generated ones).  ``pool``: worker processes (:func:`lift_pool`) that lift the
+    poses, each specialist's split into ``run.max_workers`` pieces; without it they are lifted here."""
     from components.execution.clustering import bin_label
-    from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
     from components.execution.factory import LiftEnvFactory
-    from components.execution.ppo import load_actor
     from components.execution.records import save_records
     from tasks.preflight import cache_dir
     from components.hand import HandModel
@@ -164,7 +165,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     urdf = hand.export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
     groups: dict[str, list] = {}
     out = SplitResult()
-    squeeze = squeeze_lift(stage, hand.actuated_joint_names) if scripted else None
+    if scripted:
+        squeeze_lift(stage, hand.actuated_joint_names)  # an unknown squeeze joint: one line before any lift
     if records is None:
         records = select_records(outputs["synthesize"], stage, [split])
     records = [r for r in records if len(r.scene.objects) == EVALUATED_OBJECTS]
@@ -183,9 +185,10 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
 
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    gif_paths: list[Path] = []
     progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups),
                          passes=3 if scripted else 1, every=stage.eval_progress_every)
+    workers = evaluation_workers(cfg) if pool is not None else 1
+    jobs: list[tuple[str, list[str], LiftJob]] = []  # (specialist, combinations, job), in specialist and pose order
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
@@ -193,48 +196,166 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         if stage.eval_after_reach:
             group = reached_once(group, cfg, hand, library, urdf, reach_memo)
             out.reached += len(group)
-        factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
-                                 objects_cache=str(cache_dir(cfg.run.workdir)),
-                                 urdf=str(urdf),
-                                 records=str(save_records(scratch / f"{name}.json", group)),
-                                 lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(outputs["pointnet"].path("encoder")))
-        env = factory()
-        try:
-            actor = load_actor(Path(entry["policy"]), env)
-            result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
-                                   on_rollout=progress.on_rollout(label, "policy", len(group)))
-            out.wins += sum(result.successes_per_pose)
-            out.total += result.n_poses * result.trials
-            out.poses += result.n_poses
-            if gifs:
-                gif_paths += _outcome_gifs(env, actor, result, stage, scratch / name, rollout_gif, trial_seed)
-            if scripted:  # w/o RL: the paper's straight lift from the pre-grasp itself, without the grasp closure
-                paper = without_closure(factory)
-                plain = env if paper is factory else paper()
-                try:
-                    base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                         seed=stage.eval_seed, seed_keys=keys,
-                                         on_rollout=progress.on_rollout(label, "w/o RL", len(group)))
-                finally:
-                    if plain is not env:
-                        plain.close()
-                out.scripted_wins += sum(base.successes_per_pose)
-                out.scripted_total += base.n_poses * base.trials
-                held = evaluate_lift(env, squeeze, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
-                                     on_rollout=progress.on_rollout(label, "squeeze", len(group)))
-                out.squeeze_wins += sum(held.successes_per_pose)
-                out.squeeze_total += held.n_poses * held.trials
-            for i, key in enumerate(keys):
-                row = {"specialist": label, "combination": combinations[i], "pose_key": key,
-                       "policy": result.successes_per_pose[i]}
-                if scripted:
-                    row.update({"w/o RL": base.successes_per_pose[i], "squeeze": held.successes_per_pose[i]})
-                out.outcomes.append(row)
-            progress.specialist_done(label, len(group), out, scripted)
-        finally:
-            env.close()
+        pieces = pose_chunks(len(group), workers)
+        for number, (a, b) in enumerate(pieces):
+            records_file = scratch / (f"{name}.json" if len(pieces) == 1 else f"{name}.part{number}.json")
+            factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"),
+                                     objects_cfg=cfg.objects.model_dump(mode="json"),
+                                     objects_cache=str(cache_dir(cfg.run.workdir)), urdf=str(urdf),
+                                     records=str(save_records(records_file, group[a:b])),
+                                     lift_cfg=cfg.lift.model_dump(mode="json"),
+                                     encoder=str(outputs["pointnet"].path("encoder")))
+            jobs.append((label, combinations[a:b],
+                         LiftJob(label=label, factory=factory, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
+                                 joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
+                                 gif_folder=str(scratch / name) if gifs and number == 0 else None)))
+    results = run_lift_jobs([job for _, _, job in jobs], pool, progress)
+    gif_paths: list[Path] = []
+    for (label, combinations, job), result in zip(jobs, results):
+        out.wins += sum(result.policy)
+        out.total += len(result.policy) * stage.eval_trials
+        out.poses += len(result.policy)
+        gif_paths += [Path(g) for g in result.gifs]
+        if scripted:
+            out.scripted_wins += sum(result.wo_rl)
+            out.scripted_total += len(result.wo_rl) * stage.eval_trials
+            out.squeeze_wins += sum(result.squeeze)
+            out.squeeze_total += len(result.squeeze) * stage.eval_trials
+        for i, key in enumerate(job.keys):
+            row = {"specialist": label, "combination": combinations[i], "pose_key": key, "policy": result.policy[i]}
+            if scripted:
+                row.update({"w/o RL": result.wo_rl[i], "squeeze": result.squeeze[i]})
+            out.outcomes.append(row)
     out.gifs = tuple(gif_paths)
     return out
+
+
+def evaluation_workers(cfg: PipelineConfig) -> int:
+    """Processes that lift an evaluation's poses: ``run.max_workers``, at most the machine's cores."""
+    import os
+
+    return max(1, min(cfg.run.max_workers, os.cpu_count() or 1))
+
+
+def pose_chunks(n: int, workers: int) -> list[tuple[int, int]]:
+    """``[a, b)`` ranges that split one specialist's ``n`` poses into ``workers`` near-equal consecutive pieces (one
+    piece with one worker; never an empty one)."""
+    pieces = max(1, min(workers, n))
+    bounds = [round(i * n / pieces) for i in range(pieces + 1)]
+    return [(bounds[i], bounds[i + 1]) for i in range(pieces)]
+
+
+@dataclass
+class LiftJob:
+    """One specialist lifting some of its poses (picklable: a worker process builds the env from ``factory``)."""
+
+    label: str
+    factory: Any
+    policy: str
+    keys: list[int]
+    stage: Any
+    joint_names: list[str] | None
+    scripted: bool
+    gif_folder: str | None
+
+
+@dataclass
+class LiftJobResult:
+    policy: list[int]
+    wo_rl: list[int] | None = None
+    squeeze: list[int] | None = None
+    gifs: list[str] = field(default_factory=list)
+
+
+def lift_job(job: LiftJob, progress: "_Progress | None" = None) -> LiftJobResult:
+    """Lift a job's poses with its specialist (``eval_trials`` seeded trials each) and, with ``scripted``, with the
+    paper's ``w/o RL`` (no grasp closure) and the scripted squeeze on the same trials; GIFs into ``gif_folder``."""
+    from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
+    from components.execution.ppo import load_actor
+    from tasks.specialists import squeeze_lift
+
+    stage, keys, n = job.stage, job.keys, len(job.keys)
+
+    def hook(phase: str):
+        return progress.on_rollout(job.label, phase, n) if progress is not None else None
+
+    env = job.factory()
+    try:
+        actor = load_actor(Path(job.policy), env)
+        result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
+                               on_rollout=hook("policy"))
+        out = LiftJobResult(policy=list(result.successes_per_pose))
+        if job.gif_folder is not None:
+            out.gifs = [str(p) for p in _outcome_gifs(env, actor, result, stage, Path(job.gif_folder), rollout_gif,
+                                                        trial_seed)]
+        if job.scripted:  # w/o RL: the paper's straight lift from the pre-grasp itself, without the grasp closure
+            paper = without_closure(job.factory)
+            plain = env if paper is job.factory else paper()
+            try:
+                base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
+                                     seed=stage.eval_seed, seed_keys=keys, on_rollout=hook("w/o RL"))
+            finally:
+                if plain is not env:
+                    plain.close()
+            held = evaluate_lift(env, squeeze_lift(stage, job.joint_names), trials=stage.eval_trials,
+                                 seed=stage.eval_seed, seed_keys=keys, on_rollout=hook("squeeze"))
+            out.wo_rl, out.squeeze = list(base.successes_per_pose), list(held.successes_per_pose)
+        return out
+    finally:
+        env.close()
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)  # the workers share the cores
+
+
+@contextlib.contextmanager
+def lift_pool(workers: int):
+    """Worker processes for :func:`run_lift_jobs`, started once for a whole evaluation (each imports torch and
+    PyBullet: seconds), or None with one worker."""
+    if workers <= 1:
+        yield None
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init) as pool:
+        yield pool
+
+
+def run_lift_jobs(jobs: list[LiftJob], pool, progress: "_Progress") -> list[LiftJobResult]:
+    """The jobs' results in job order: in this process without a ``pool`` (:func:`lift_pool`) or with one job (a
+    progress line every ``eval_progress_every`` poses of each pass), else in the pool's processes (a line per
+    finished job).  Every trial is seeded by its pose and an episode does not depend on the episodes before it, so
+    the outcomes are the same either way."""
+    results: list[LiftJobResult | None] = [None] * len(jobs)
+    tally = SplitResult()
+
+    def finished(index: int, result: LiftJobResult) -> None:
+        results[index] = result
+        job = jobs[index]
+        tally.wins += sum(result.policy)
+        tally.total += len(result.policy) * job.stage.eval_trials
+        if job.scripted:
+            tally.scripted_wins += sum(result.wo_rl)
+            tally.scripted_total += len(result.wo_rl) * job.stage.eval_trials
+            tally.squeeze_wins += sum(result.squeeze)
+            tally.squeeze_total += len(result.squeeze) * job.stage.eval_trials
+        progress.specialist_done(job.label, len(job.keys), tally, job.scripted)
+
+    if pool is None or len(jobs) <= 1:
+        for index, job in enumerate(jobs):
+            finished(index, lift_job(job, progress))
+        return results  # type: ignore[return-value]
+    from concurrent.futures import as_completed
+
+    futures = {pool.submit(lift_job, job): index for index, job in enumerate(jobs)}
+    for future in as_completed(futures):
+        finished(futures[future], future.result())
+    return results  # type: ignore[return-value]
 
 
 def write_outcomes(path: Path, res: SplitResult, trials: int) -> Path:
@@ -312,20 +433,26 @@ class _Progress:
 def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> ExecutionReport:
     """Write the execution tables (module docstring).  With ``ablations`` the specialists of every
     :data:`ABLATIONS` config are trained first (the specialists stage with those overrides: cached units)."""
-    from flows import specialists as specialists_stage
-    from flows.pipeline import run_pipeline
-    from flows.runtime import make_console, make_tracker
+    from flows.runtime import make_console
 
-    stage = cfg.specialists
     say = make_console().print
     outputs = _stage_outputs(cfg)
-    results = cfg.run.workdir / "results"
-    scratch = results / "execution"
+    scratch = cfg.run.workdir / "results" / "execution"
+    with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
+        rows, ablation, gifs = _evaluate_settings(cfg, ablations, outputs, scratch, say, pool)
+    return _write_execution(cfg, outputs, rows, ablation, gifs)
+
+
+def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scratch: Path, say, pool):
+    from flows import specialists as specialists_stage
+    from flows.pipeline import run_pipeline
+
+    stage = cfg.specialists
     rows, ablation, gifs = [], [], []
     reach_memo: dict = {}  # with eval_after_reach: each pose is reached once for all the rows below
     for setting, split in EXECUTION_SETTINGS:
         res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=setting == "Syn-Pl", reach_memo=reach_memo,
-                             say=say, title=setting)
+                             say=say, title=setting, pool=pool)
         gifs += res.gifs
         write_outcomes(scratch / setting / "outcomes.json", res, stage.eval_trials)
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
@@ -353,10 +480,19 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
         folder = scratch / "ablations" / name.replace("/", "").replace(" ", "_")
         res = evaluate_split(variant, _stage_outputs(variant), "Pl", folder, gifs=False, reach_memo=reach_memo,
-                             say=say, title=name)
+                             say=say, title=name, pool=pool)
         write_outcomes(folder / "outcomes.json", res, stage.eval_trials)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})
+    return rows, ablation, gifs
+
+
+def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: list, gifs: list) -> ExecutionReport:
+    """The execution tables (JSON, markdown) under ``results/`` and their MLflow run."""
+    from flows.runtime import make_tracker
+
+    stage = cfg.specialists
+    results = cfg.run.workdir / "results"
     specialists = outputs["specialists"]
     provenance = {"profile": cfg.profile, "records_source": stage.records_source, "after_reach": stage.eval_after_reach,
                   "specialists_manifest": str(Path(specialists.folder) / "manifest.json")}

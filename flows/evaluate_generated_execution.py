@@ -25,7 +25,7 @@ from typing import Any
 from components.errors import MultigraspError
 from flows.config import PipelineConfig
 from flows.evaluate_execution import (EVALUATED_OBJECTS, SQUEEZE_ROW, _pct, _stage_outputs, evaluate_split,
-                                      write_outcomes)
+                                      evaluation_workers, lift_pool, write_outcomes)
 from flows.paper import execution_paper
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
@@ -56,45 +56,20 @@ def evaluate_generated_execution(cfg: PipelineConfig) -> GeneratedExecutionRepor
     """Write the Gen execution table (module docstring)."""
     from components.hand import HandModel
     from components.objects import ObjectLibrary
-    from flows.evaluate_generated import generated_table, load_generator_for
+    from flows.evaluate_generated import load_generator_for
     from flows.runtime import make_console, make_tracker
     from tasks.preflight import cache_dir
-    from tasks.specialists import records_from_table
     from tasks.synthesize import read_scene_records
 
     outputs = _stage_outputs(cfg)
     scenes, generator, model = load_generator_for(cfg, None, "evaluate execution --source generated")
     stage = cfg.specialists
-    say = make_console().print
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    scene_records = read_scene_records(scenes)
     results = cfg.run.workdir / "results"
-    scratch = results / "execution_generated"
-    rows, gifs = [], []
-    reach_memo: dict = {}
-    for setting, split in GENERATED_EXECUTION_SETTINGS:
-        picked = [r for r in scene_records
-                  if r["split"] == split and len(r["objects"]) == EVALUATED_OBJECTS][: cfg.generator.eval_scenes]
-        frame, seconds = generated_table(cfg, model, hand, library, picked,
-                                         progress=lambda line: print(f"{setting}: {line}", file=sys.stderr, flush=True))
-        kept = frame[frame["accepted"].astype(bool)] if len(frame) else frame
-        records = records_from_table(kept) if len(kept) else []
-        scripted = setting == "Gen-Pl"
-        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=scripted, reach_memo=reach_memo,
-                             say=say, title=setting, records=records)
-        gifs += res.gifs
-        write_outcomes(scratch / setting / "outcomes.json", res, stage.eval_trials)
-        row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
-               "trials": stage.eval_trials, "scenes": len(picked), "generated": len(frame), "kept": len(kept),
-               "generation_s": round(seconds, 2), "unmatched_poses": res.unmatched,
-               "specialists_used": list(res.used), "matched_by": res.matched_by,
-               "after_reach": stage.eval_after_reach, "reached_poses": res.reached,
-               "paper": execution_paper(setting)}
-        if scripted:
-            row["w/o RL"] = res.rate(res.scripted_wins, res.scripted_total)
-            row[SQUEEZE_ROW] = res.rate(res.squeeze_wins, res.squeeze_total)
-        rows.append(row)
+    with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
+        rows, gifs = _evaluate_generated(cfg, outputs, model, hand, library, read_scene_records(scenes),
+                                         results / "execution_generated", make_console().print, pool)
     if not any(r["generated"] for r in rows):
         raise MultigraspError("evaluate execution --source generated found no dual-object Pl / Com / Geo scene in this "
                               "config's scenes stage — give the splits pair scenes (scenes.per_combination)")
@@ -117,3 +92,37 @@ def evaluate_generated_execution(cfg: PipelineConfig) -> GeneratedExecutionRepor
         tracker.log_artifact(run_id, path, "rollouts")
     tracker.end_run(run_id)
     return GeneratedExecutionReport(rows=rows, json_path=json_path, markdown=markdown)
+
+
+def _evaluate_generated(cfg: PipelineConfig, outputs: dict, model, hand, library, scene_records: list,
+                        scratch: Path, say, pool) -> tuple[list[dict[str, Any]], list[Path]]:
+    """Generate, keep and lift the pre-grasps of each Gen setting: its table row, and the rollout GIFs."""
+    from flows.evaluate_generated import generated_table
+    from tasks.specialists import records_from_table
+
+    stage = cfg.specialists
+    rows, gifs = [], []
+    reach_memo: dict = {}
+    for setting, split in GENERATED_EXECUTION_SETTINGS:
+        picked = [r for r in scene_records
+                  if r["split"] == split and len(r["objects"]) == EVALUATED_OBJECTS][: cfg.generator.eval_scenes]
+        frame, seconds = generated_table(cfg, model, hand, library, picked,
+                                         progress=lambda line: print(f"{setting}: {line}", file=sys.stderr, flush=True))
+        kept = frame[frame["accepted"].astype(bool)] if len(frame) else frame
+        records = records_from_table(kept) if len(kept) else []
+        scripted = setting == "Gen-Pl"
+        res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=scripted, reach_memo=reach_memo,
+                             say=say, title=setting, records=records, pool=pool)
+        gifs += res.gifs
+        write_outcomes(scratch / setting / "outcomes.json", res, stage.eval_trials)
+        row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
+               "trials": stage.eval_trials, "scenes": len(picked), "generated": len(frame), "kept": len(kept),
+               "generation_s": round(seconds, 2), "unmatched_poses": res.unmatched,
+               "specialists_used": list(res.used), "matched_by": res.matched_by,
+               "after_reach": stage.eval_after_reach, "reached_poses": res.reached,
+               "paper": execution_paper(setting)}
+        if scripted:
+            row["w/o RL"] = res.rate(res.scripted_wins, res.scripted_total)
+            row[SQUEEZE_ROW] = res.rate(res.squeeze_wins, res.squeeze_total)
+        rows.append(row)
+    return rows, gifs

@@ -205,6 +205,14 @@ def test_evaluate_execution_of_generated_pre_grasps_writes_the_gen_rows(runs, ca
     assert "| execution_generated.json | smoke |" in (workdir / "results" / "report.md").read_text()
 
 
+def test_pose_chunks_split_a_specialists_poses_evenly():
+    from flows.evaluate_execution import pose_chunks
+
+    assert pose_chunks(5, 2) == [(0, 2), (2, 5)] or pose_chunks(5, 2) == [(0, 3), (3, 5)]
+    assert pose_chunks(1, 4) == [(0, 1)] and pose_chunks(7, 1) == [(0, 7)] and pose_chunks(0, 2) == [(0, 0)]
+    assert [b - a for a, b in pose_chunks(100, 3)] == [33, 34, 33]
+
+
 def test_evaluation_progress_says_a_line_every_k_poses_of_each_pass_with_an_eta():
     from flows.evaluate_execution import _Progress
 

@@ -44,6 +44,24 @@ def test_second_smoke_run_serves_every_stage_from_cache(smoke_runs):
     assert after_second == first, "the second run recomputed units"
 
 
+def test_lifting_in_worker_processes_gives_the_same_outcomes(smoke_runs):
+    """--max-workers 2 splits each specialist's poses over two spawned processes; every trial is seeded by its pose
+    and an episode does not depend on the ones before it, so every pose's outcome is the one lifted in-process."""
+    import json
+
+    workdir, _, _ = smoke_runs
+    argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir)]
+    for item in ("specialists.eval_poses=4", "specialists.eval_trials=1", "specialists.gifs_per_outcome=0"):
+        argv += ["--set", item]
+    outcomes = {}
+    for workers in ("1", "2"):
+        assert main([*argv, "--max-workers", workers]) == 0
+        outcomes[workers] = {setting: json.loads((workdir / "results" / "execution" / setting / "outcomes.json")
+                                                 .read_text())["poses"] for setting in ("Syn-Pl", "Syn-Com", "Syn-Geo")}
+    assert outcomes["1"] == outcomes["2"]
+    assert len(outcomes["1"]["Syn-Pl"]) == 4 and len({p["specialist"] for p in outcomes["1"]["Syn-Pl"]}) >= 1
+
+
 def test_smoke_run_prints_its_wall_time(tmp_path, capsys):
     assert _run(tmp_path, *SMALL) == 0
     assert _run(tmp_path, *SMALL) == 0
