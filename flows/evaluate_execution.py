@@ -306,9 +306,12 @@ def lift_job(job: LiftJob, progress: "_Progress | None" = None) -> LiftJobResult
 
 
 def _worker_init() -> None:
+    import signal
+
     import torch
 
     torch.set_num_threads(1)  # the workers share the cores
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the command stops them
 
 
 @contextlib.contextmanager
@@ -321,9 +324,17 @@ def lift_pool(workers: int):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_worker_init) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init)
+    try:
         yield pool
+    except BaseException:  # Ctrl-C / SIGTERM or an error: nothing of an unfinished evaluation is kept, so stop the
+        # workers now instead of letting them lift every queued piece first
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def run_lift_jobs(jobs: list[LiftJob], pool, progress: "_Progress") -> list[LiftJobResult]:
