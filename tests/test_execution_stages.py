@@ -48,9 +48,10 @@ def _rerun_argv(workdir, *sets: str) -> list[str]:
 
 
 def _evaluate_argv(workdir, config, *sets: str, ablations: bool = False) -> list[str]:
-    """``multigrasp evaluate execution`` on ``workdir`` with the fixture's settings and more ``--set``s."""
+    """``multigrasp evaluate execution`` on ``workdir`` with the fixture's settings and more ``--set``s, lifting in
+    the test's process (monkeypatched spies see it; tests/test_flows.py checks the worker processes)."""
     argv = ["evaluate", "execution", *(["--ablations"] if ablations else []), "--profile", "smoke",
-            "--workdir", str(workdir), "--config", str(config)]
+            "--workdir", str(workdir), "--config", str(config), "--max-workers", "1"]
     for item in [*ACCEPT_ALL, *TINY, *sets]:
         argv += ["--set", item]
     return argv
