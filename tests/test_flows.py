@@ -44,12 +44,14 @@ def test_second_smoke_run_serves_every_stage_from_cache(smoke_runs):
     assert after_second == first, "the second run recomputed units"
 
 
-def test_lifting_in_worker_processes_gives_the_same_outcomes(smoke_runs):
+def test_lifting_in_worker_processes_gives_the_same_outcomes(smoke_runs, tmp_path):
     """--max-workers 2 splits each specialist's poses over two spawned processes; every trial is seeded by its pose
     and an episode does not depend on the ones before it, so every pose's outcome is the one lifted in-process."""
     import json
+    import shutil
 
-    workdir, _, _ = smoke_runs
+    workdir = tmp_path / "runs"  # a copy: the shared smoke work dir's MLflow store is counted by another test
+    shutil.copytree(smoke_runs[0], workdir)
     argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir)]
     for item in ("specialists.eval_poses=4", "specialists.eval_trials=1", "specialists.gifs_per_outcome=0"):
         argv += ["--set", item]
