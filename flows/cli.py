@@ -419,7 +419,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
               "pose by pose with python -m benchmarks.paired_execution A B")
         return 0
     if args.source is None:
-        raise MultigraspError("evaluate pregrasp needs --source (synthetic) — e.g. multigrasp evaluate pregrasp --source synthetic")
+        raise MultigraspError("evaluate pregrasp needs --source synthetic (the synthesize stage's grasps) or --source "
+                              "generated (the trained generator's) — e.g. multigrasp evaluate pregrasp --source synthetic")
     with _using(cfg):
         report = evaluate_pregrasp(cfg, args.source, ablations=args.ablations)
     print(report.markdown)

@@ -118,3 +118,9 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     assert states["execution.json"][0] == "stale" and "multigrasp evaluate execution" in states["execution.json"][1]
     assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
     assert states["pregrasp_generated.json"][0] == "missing"
+
+
+def test_evaluate_pregrasp_without_a_source_names_both(tmp_path, capsys):
+    assert main(["evaluate", "pregrasp", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--source synthetic" in err and "--source generated" in err and err.count("\n") == 1
