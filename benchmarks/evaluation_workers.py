@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
               "speedup": round(medians[1] / medians[args.workers], 3), "same_outcomes": same,
               "poses": {r["setting"]: r["n_poses"] for r in summary["rows"]},
               "trials": summary["rows"][0]["trials"], "profile": args.profile, "sets": args.sets,
-              "cpu_count": __import__("os").cpu_count()}
+              "cpu_count": os.cpu_count()}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

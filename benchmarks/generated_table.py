@@ -9,7 +9,8 @@ For the first ``--scenes`` scenes of ``--split`` of the ``scenes`` stage, ``gene
 each, generated, IK-solved and refined exactly as ``multigrasp evaluate pregrasp --source generated`` does
 (:func:`flows.evaluate_generated.generate_for_scene`, same seeds), scored by Q1 and PN, and written with the
 synthesis table's columns (``scene_id``, ``split``, ``combination``, ``row``, object names / positions /
-quaternions, ``p``, ``R``, ``q``, ``accepted``, ``q1``, ``pn_mm``, ``contact_ratio``; no chosen contacts).
+quaternions, ``p``, ``R``, ``q``, ``accepted``, ``q1``, ``pn_mm``, ``pn_before_mm``, ``contact_ratio``; no chosen
+contacts; :func:`flows.evaluate_generated.generated_table`).
 ``accepted`` is the paper's protocol filter (``generator.eval_filter``: PN and contact ratio; ``--set
 generator.eval_filter.enabled=false`` accepts every row), so the lift tools, which read accepted rows, lift what the
 protocol keeps.  The JSON gives n (accepted), n_generated, mean Q1 and PN over the accepted rows and over all.

@@ -270,7 +270,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
         table.add_column(col)
     colors = {"done": "green", "partial": "yellow", "stale": "magenta", "corrupt": "red", "missing": "white",
               "blocked": "dim"}
-    for row in status(cfg):
+    rows = status(cfg)
+    for row in rows:
         table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
                       row.folder or "-", row.detail)
     console = Console()
@@ -282,7 +283,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
         for col in ("results file", "state", "note"):
             results.add_column(col)
         shades = {"current": "green", "stale": "magenta", "unknown": "yellow", "missing": "white"}
-        for row in evaluation_status(cfg):
+        for row in evaluation_status(cfg, finals={r.name: r.folder for r in rows}):  # verified once, above
             results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
         console.print(results)
     return 0

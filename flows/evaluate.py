@@ -186,7 +186,7 @@ def generator_ablation_markdown(rows: list[dict[str, Any]]) -> str:
         lines.append(f"| {row['setting']} | {_fmt(row.get('q1'), 3)} | {_fmt(row.get('pn_mm'), 2)} | {kept} | "
                      f"{_fmt(row.get('q1_all'), 3)} | {_fmt(row.get('pn_mm_all'), 2)} | {cell} |")
     lines += ["", "The paper's succ column is the execution success of each generator's grasps (Table II(a)); "
-                  "this project does not lift generated grasps in its evaluation yet."]
+                  "here `evaluate execution --source generated` lifts those of Ours, not of the ablation variants."]
     return "\n".join(lines) + "\n"
 
 

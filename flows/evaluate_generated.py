@@ -101,21 +101,28 @@ def generate_for_scene(cfg: PipelineConfig, model, hand, library, record: dict[s
     return objects, refined, time.perf_counter() - start
 
 
+#: Columns of :func:`generated_table` (also of an empty one).
+GENERATED_COLUMNS = ["scene_id", "split", "combination", "row", "object_names", "object_positions",
+                     "object_quats_xyzw", "p", "R", "q", "accepted", "q1", "pn_mm", "pn_before_mm", "contact_ratio"]
+
+
 def generated_table(cfg: PipelineConfig, model, hand, library, scene_records: list[dict[str, Any]],
-                    progress: Callable[[str], None] | None = None):
+                    progress: Callable[[str], None] | None = None, with_q1: bool = True):
     """Generated, refined and scored grasps of ``scene_records`` (scenes-stage records; the ``number`` of
     :func:`generate_for_scene` is each record's index here) as a frame in the synthesis table's layout
     (``scene_id``, ``split``, ``combination``, ``row``, object names / positions / quaternions, ``p``, ``R``, ``q``,
-    ``accepted`` = kept by ``generator.eval_filter``, ``q1``, ``pn_mm``, ``contact_ratio``; no chosen contacts), so
-    that what reads a synthesis table's rows (:func:`tasks.specialists.records_from_table`, the grasp-table tools)
-    reads generated grasps the same way.  -> (frame, seconds of generation, IK and refinement)."""
+    ``accepted`` = kept by ``generator.eval_filter``, ``q1``, ``pn_mm``, ``contact_ratio``; no chosen contacts) plus
+    ``pn_before_mm``, the raw sample's deepest penetration (after IK, before refinement), so that what reads a
+    synthesis table's rows (:func:`tasks.specialists.records_from_table`, the grasp-table tools) reads generated
+    grasps the same way.  ``with_q1=False`` leaves ``q1`` NaN (the filter does not need it; Q1 is the costly
+    metric).  ``progress`` gets one line per scene.  -> (frame, seconds of generation, IK and refinement)."""
     import pandas as pd
 
     rows, seconds = [], 0.0
     for number, record in enumerate(scene_records):
         objects, refined, elapsed = generate_for_scene(cfg, model, hand, library, record, number)
         seconds += elapsed
-        q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
+        q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined, with_q1=with_q1)
         scene = objects.scene
         for i in range(refined.p.shape[0]):
             rows.append({"scene_id": record["id"], "split": record["split"], "combination": "+".join(scene.names),
@@ -124,11 +131,12 @@ def generated_table(cfg: PipelineConfig, model, hand, library, scene_records: li
                          "object_quats_xyzw": np.concatenate([pl.quat_xyzw for pl in scene.objects]).tolist(),
                          "p": refined.p[i].tolist(), "R": refined.R[i].reshape(-1).tolist(),
                          "q": refined.q[i].tolist(), "accepted": bool(kept[i]), "q1": float(q1[i]),
-                         "pn_mm": float(pn[i]), "contact_ratio": float(ratio[i])})
+                         "pn_mm": float(pn[i]), "pn_before_mm": float(refined.depth_before[i]) * 1000.0,
+                         "contact_ratio": float(ratio[i])})
         if progress is not None:
-            progress(f"generated scene {number + 1}/{len(scene_records)} ({refined.p.shape[0]} grasps, "
-                     f"{int(kept.sum())} kept, {elapsed:.1f}s)")
-    return pd.DataFrame(rows), seconds
+            progress(f"scene {number + 1}/{len(scene_records)} ({refined.p.shape[0]} grasps, {int(kept.sum())} kept; "
+                     f"generation, IK, refinement{', Q1' if with_q1 else ''}, PN {elapsed:.1f}s)")
+    return pd.DataFrame(rows, columns=GENERATED_COLUMNS), seconds
 
 
 def load_generator_for(cfg: PipelineConfig, checkpoint: Path | None = None, purpose: str = "this command"):
@@ -149,21 +157,25 @@ def load_generator_for(cfg: PipelineConfig, checkpoint: Path | None = None, purp
     return scenes, generator, model
 
 
-def score_generated(cfg: PipelineConfig, hand, objects, refined):
+def score_generated(cfg: PipelineConfig, hand, objects, refined, with_q1: bool = True):
     """Q1, PN (mm), contact ratio and the paper's protocol filter (``generator.eval_filter``) of one scene's refined
-    grasps (:func:`generate_for_scene`). -> q1, pn_mm, contact_ratio (B,) float tensors and kept (B,) bool."""
+    grasps (:func:`generate_for_scene`). -> q1, pn_mm, contact_ratio (B,) float tensors and kept (B,) bool.
+    ``with_q1=False``: Q1 is NaN (not computed)."""
     import torch
 
     from components.generation import contact_ratio, keep_generated
     from components.metrics import penetration_depth, q1_grasps
 
     metrics, keep = cfg.synthesis.metrics, cfg.generator.eval_filter
-    q1, _ = q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)
     pn = penetration_depth(hand, objects, refined.p, refined.R, refined.q, metrics).pn_mm
     ratio = contact_ratio(hand, objects, refined.p, refined.R, refined.q,
                           cfg.synthesis.optimizer_for(objects.n_objects), keep.contact_distance_m)
     pn = torch.as_tensor(pn, dtype=ratio.dtype)
-    return torch.as_tensor(q1, dtype=ratio.dtype), pn, ratio, keep_generated(pn, ratio, keep)
+    if with_q1:
+        q1 = torch.as_tensor(q1_grasps(hand, objects, refined.p, refined.R, refined.q, metrics)[0], dtype=ratio.dtype)
+    else:
+        q1 = torch.full_like(ratio, float("nan"))
+    return q1, pn, ratio, keep_generated(pn, ratio, keep)
 
 
 def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint: Path | None = None,
@@ -173,8 +185,6 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     ``train-generator`` stage, or ``checkpoint`` (a ``generator.pt``) when given.  Each row also has
     ``pn_before_refine_mm``, the mean deepest penetration of the raw samples (after IK, before refinement).
     ``progress`` gets one line per scene (setting, scene k/n, elapsed, ETA; stderr by default)."""
-    import pandas as pd
-
     from components.hand import HandModel
     from components.objects import ObjectLibrary
     from flows.evaluate import Setting, setting_row
@@ -190,25 +200,16 @@ def generated_rows(cfg: PipelineConfig, settings=GENERATED_SETTINGS, checkpoint:
     plan = [(name, split, [r for r in records if r["split"] == split
                            and len(r["objects"]) <= stage.model.max_objects][: stage.eval_scenes])
             for name, split in settings]
-    total, done, begin = sum(len(picked) for _, _, picked in plan), 0, time.perf_counter()
+    total, done, begin = sum(len(picked) for _, _, picked in plan), [0], time.perf_counter()
     for name, split, picked in plan:
-        frame_rows, seconds = [], 0.0
-        for number, record in enumerate(picked):
-            objects, refined, elapsed = generate_for_scene(cfg, model, hand, library, record, number)
-            n = stage.eval_grasps_per_scene
-            seconds += elapsed
-            q1, pn, ratio, kept = score_generated(cfg, hand, objects, refined)
-            for i in range(n):
-                frame_rows.append({"q1": float(q1[i]), "pn_mm": float(pn[i]), "q": refined.q[i].detach().numpy(),
-                                   "pn_before_mm": float(refined.depth_before[i]) * 1000.0,
-                                   "contact_ratio": float(ratio[i]), "kept": bool(kept[i])})
-            done += 1
+        def scene_done(line: str, name: str = name) -> None:
+            done[0] += 1
             if progress is not None:
                 elapsed = time.perf_counter() - begin
-                progress(f"generated {name} scene {number + 1}/{len(picked)} ({n} grasps; generation, IK, refinement, "
-                         f"Q1, PN) elapsed {elapsed:.0f}s ETA {elapsed / done * (total - done):.0f}s")
-        frame = pd.DataFrame(frame_rows, columns=["q1", "pn_mm", "q", "pn_before_mm", "contact_ratio", "kept"])
-        row = setting_row(Setting(name, split), frame[frame["kept"].astype(bool)], len(frame))
+                progress(f"generated {name} {line} elapsed {elapsed:.0f}s ETA {elapsed / done[0] * (total - done[0]):.0f}s")
+
+        frame, seconds = generated_table(cfg, model, hand, library, picked, progress=scene_done)
+        row = setting_row(Setting(name, split), frame[frame["accepted"].astype(bool)], len(frame))
         every = setting_row(Setting(name, split), frame, len(frame))
         row.update({"q1_all": every["q1"], "pn_mm_all": every["pn_mm"], "div_deg_all": every["div_deg"],
                     "n_generated": len(frame),

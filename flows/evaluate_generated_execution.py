@@ -3,8 +3,9 @@ paper's Table I, Gen rows' success: 40.20 / 23.32 / 15.65 % on Gen-Pl / Com / Ge
 
 For each setting ``Gen-Pl`` / ``Gen-Com`` / ``Gen-Geo``, the first ``generator.eval_scenes`` dual-object scenes of
 that split (the ``scenes`` stage's) each get ``generator.eval_grasps_per_scene`` generated, IK-solved and refined
-pre-grasps, exactly as ``evaluate pregrasp --source generated`` makes them
-(:func:`flows.evaluate_generated.generated_table`); the ones the paper's protocol keeps (``generator.eval_filter``:
+pre-grasps by the same procedure as ``evaluate pregrasp --source generated``
+(:func:`flows.evaluate_generated.generated_table`; not always the same grasps: the noise is seeded by a scene's place
+in its list, and that list has no singles here; Q1 is not computed, the filter does not need it); the ones the paper's protocol keeps (``generator.eval_filter``:
 penetration and contact ratio) are lifted as the synthesised ones are by ``evaluate execution``
 (:func:`flows.evaluate_execution.evaluate_split`: ``specialists.eval_poses`` of them evenly spread, the matching
 specialist, ``eval_trials`` seeded perturbed trials, from the end of the planned reach with
@@ -106,9 +107,9 @@ def _evaluate_generated(cfg: PipelineConfig, outputs: dict, model, hand, library
     for setting, split in GENERATED_EXECUTION_SETTINGS:
         picked = [r for r in scene_records
                   if r["split"] == split and len(r["objects"]) == EVALUATED_OBJECTS][: cfg.generator.eval_scenes]
-        frame, seconds = generated_table(cfg, model, hand, library, picked,
+        frame, seconds = generated_table(cfg, model, hand, library, picked, with_q1=False,  # the filter needs no Q1
                                          progress=lambda line: print(f"{setting}: {line}", file=sys.stderr, flush=True))
-        kept = frame[frame["accepted"].astype(bool)] if len(frame) else frame
+        kept = frame[frame["accepted"].astype(bool)]
         records = records_from_table(kept) if len(kept) else []
         scripted = setting == "Gen-Pl"
         res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=scripted, reach_memo=reach_memo,

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
+from flows.evaluate import _fmt as _num
 from flows.paper import (PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
 from tasks.artifacts import atomic_write_text
 
@@ -59,10 +60,6 @@ def _load(results: Path, name: str) -> dict[str, Any] | None:
 
 def _rows(data: dict[str, Any] | None) -> dict[str, dict[str, Any]]:
     return {row.get("setting"): row for row in (data or {}).get("rows", [])}
-
-
-def _num(value: Any, digits: int) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
 
 
 def _pct(value: Any) -> str:
@@ -214,14 +211,17 @@ class EvaluationStatus:
     detail: str
 
 
-def evaluation_status(cfg) -> list[EvaluationStatus]:
+def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[EvaluationStatus]:
     """Whether each evaluation under ``results/`` was made from this config's stage outputs now (``current``), from
     others (``stale``: a stage was recomputed, or another config evaluated last), or cannot say (``unknown``).  Stage
-    outputs are compared by their unit key (the folder name), so a moved work dir stays current."""
+    outputs are compared by their unit key (the folder name), so a moved work dir stays current.  ``finals``: each
+    stage's output folder as ``status`` found it (None: not done), so its files are not verified a second time."""
     from flows.pipeline import stage_output
 
     results = cfg.run.workdir / "results"
     outputs: dict[str, Any] = {}
+    if finals is not None:
+        outputs = {stage: (Path(folder) if folder else None) for stage, folder in finals.items()}
     rows = []
     for name, command in SOURCES.items():
         path = results / name
@@ -237,10 +237,11 @@ def evaluation_status(cfg) -> list[EvaluationStatus]:
         stale = []
         for field_name, stage in checks:
             if stage not in outputs:
-                outputs[stage] = stage_output(cfg, stage)
+                found = stage_output(cfg, stage)
+                outputs[stage] = Path(found.folder) if found is not None else None
             made_from = data.get(field_name)
             now = outputs[stage]
-            if not made_from or now is None or Path(made_from).parent.name != Path(now.folder).name:
+            if not made_from or now is None or Path(made_from).parent.name != now.name:
                 stale.append(stage)
         profile = data.get("profile", "?")
         if not checks:

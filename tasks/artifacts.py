@@ -60,21 +60,35 @@ def file_lock(path: Path, on_wait: Callable[[str], None] | None = None) -> Itera
     blocking.  The kernel releases the lock when its process ends, ``kill -9`` included, so no stale lock is left."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a+") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        def waiting() -> None:
             if on_wait is not None:
                 handle.seek(0)
                 on_wait(handle.read().strip() or "another process")
-            fcntl.flock(handle, fcntl.LOCK_EX)
+
+        _flock(handle, fcntl.LOCK_EX, waiting)
         try:
             handle.seek(0)
             handle.truncate()
-            handle.write(f"pid {os.getpid()} ({' '.join(sys.argv)[:200]})")
+            handle.write(_holder_line())
             handle.flush()
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _flock(handle, mode: int, on_wait: Callable[[], None] | None) -> None:
+    """``flock(handle, mode)``; if another process holds it, call ``on_wait()`` once, then block until it is free."""
+    try:
+        fcntl.flock(handle, mode | fcntl.LOCK_NB)
+    except BlockingIOError:
+        if on_wait is not None:
+            on_wait()
+        fcntl.flock(handle, mode)
+
+
+def _holder_line() -> str:
+    """What a lock holder writes about itself: its pid and command line."""
+    return f"pid {os.getpid()} ({' '.join(sys.argv)[:200]})"
 
 
 def lock_holder(path: Path) -> str | None:
@@ -114,15 +128,10 @@ def workdir_in_use(workdir: Path, on_wait: Callable[[], None] | None = None, cre
     path = lock_path(workdir, WORKDIR_LOCK)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a+") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            if on_wait is not None:
-                on_wait()
-            fcntl.flock(handle, fcntl.LOCK_SH)
+        _flock(handle, fcntl.LOCK_SH, on_wait)
         mine = _invocation_file(workdir)
         try:
-            atomic_write_text(mine, f"pid {os.getpid()} ({' '.join(sys.argv)[:200]})")
+            atomic_write_text(mine, _holder_line())
             yield
         finally:
             mine.unlink(missing_ok=True)

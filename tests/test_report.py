@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from flows.cli import main
 from flows.evaluate import pregrasp_markdown, with_paper
 from flows.evaluate_execution import execution_markdown
@@ -118,6 +120,10 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     assert states["execution.json"][0] == "stale" and "multigrasp evaluate execution" in states["execution.json"][1]
     assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
     assert states["pregrasp_generated.json"][0] == "missing"
+    # `multigrasp status` hands over the stage outputs it has verified: the same answer without verifying again
+    monkeypatch.setattr(flows.pipeline, "stage_output", lambda c, stage: pytest.fail("verified a second time"))
+    finals = {"synthesize": str(now["synthesize"]), "specialists": str(now["specialists"]), "train-generator": None}
+    assert {r.name: (r.state, r.detail) for r in evaluation_status(cfg, finals)} == states
 
 
 def test_evaluate_pregrasp_without_a_source_names_both(tmp_path, capsys):
