@@ -7,7 +7,9 @@ Every component owns its section (``HandConfig`` lives in ``components/hand``,
     defaults  ←  configs/<profile>.yaml  ←  --config FILE  ←  --set a.b=value (repeatable)
 
 A profile or ``--config`` file may start with ``include: [FILE, ...]`` (paths relative to that file): the included
-files are merged first, in order, and the file's own keys on top of them.  The bench and paper profiles share
+files are merged first, in order, and the file's own keys on top of them.  The mesh paths a file names
+(``objects.user`` meshes, ``objects.library_file``) are relative to that file too; those given to ``--set`` are
+relative to the working directory.  Both are made absolute on load, so worker processes see the same files.  The bench and paper profiles share
 their multi-object scene and synthesis setting this way (``configs/shared/multi_object.yaml``).
 
 ``--set`` values are parsed as YAML (``--set objects.train=[cube,cylinder]``,
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import logging
 from pathlib import Path
 from typing import Any, Literal
 
@@ -118,7 +121,7 @@ def _read_with_includes(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, A
     """The mapping of a config file with its ``include`` list resolved: each listed file (relative to ``path``'s
     folder, itself possibly including others) merged in order, then the file's own keys on top."""
     here = path.resolve()
-    data = _read_yaml(path)
+    data = _anchor_object_paths(_read_yaml(path), path.parent, f"config file {path}")
     includes = data.pop(INCLUDE_KEY, None)
     if includes is None:  # no key, or an empty 'include:'
         includes = []
@@ -137,6 +140,47 @@ def _read_with_includes(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, A
                                   "to the including file's folder)")
         tree = _merge(tree, _read_with_includes(target, chain + (here,)))
     return _merge(tree, data)
+
+
+def _anchor(value: Any, folder: Path, key: str, source: str) -> Any:
+    """``value`` (a path written under ``key`` in ``source``) made absolute: a relative path is read from ``folder``.
+
+    A config file's relative paths are relative to the file, as its ``include`` list is, so a config shipped beside
+    its meshes works from any working directory (and in worker processes or Ray nodes started elsewhere).  Until the
+    fiftieth session they were read from the working directory; a path that exists only from there is still found,
+    with a warning naming the change."""
+    if not isinstance(value, (str, Path)) or not str(value):
+        return value  # not a path: the config's own validation names it
+    path = Path(value).expanduser()
+    if path.is_absolute():
+        return str(path)
+    anchored = (folder / path).resolve()
+    if not anchored.exists() and folder.resolve() != Path.cwd().resolve() and path.exists():
+        logging.getLogger("multigrasp").warning(
+            "%s: %s '%s' is found from the working directory, not from the file's folder (%s); relative paths in a "
+            "config file are read from its folder now — write it relative to the file or absolute",
+            source, key, value, folder.resolve())
+        return str(path.resolve())
+    return str(anchored)
+
+
+def _anchor_object_paths(data: dict[str, Any], folder: Path, source: str) -> dict[str, Any]:
+    """``data`` with the file paths it names under ``objects`` (each ``objects.user`` mesh, ``objects.library_file``)
+    made absolute from ``folder`` (:func:`_anchor`); anything that is not the expected shape is left for the
+    config's validation to report."""
+    objects = data.get("objects")
+    if not isinstance(objects, dict):
+        return data
+    objects = dict(objects)
+    if "library_file" in objects and objects["library_file"] is not None:
+        objects["library_file"] = _anchor(objects["library_file"], folder, "objects.library_file", source)
+    if isinstance(objects.get("user"), list):
+        objects["user"] = [
+            {**item, "mesh": _anchor(item["mesh"], folder, f"objects.user mesh of '{item.get('name', '?')}'", source)}
+            if isinstance(item, dict) and "mesh" in item else item
+            for item in objects["user"]
+        ]
+    return {**data, "objects": objects}
 
 
 def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
@@ -223,6 +267,8 @@ def load_config(
     for item in sets or []:
         path_parts, value = parse_set(item)
         tree = _assign(tree, path_parts, value)
+        if path_parts[0] == "objects":  # paths given on the command line are read from the working directory
+            tree = _anchor_object_paths(tree, Path.cwd(), "--set")
     run_updates = {k: v for k, v in run_overrides.items() if v is not None}
     if run_updates:
         tree = _merge(tree, {"run": run_updates})

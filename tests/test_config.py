@@ -157,3 +157,60 @@ def test_the_objects_digest_follows_the_contents_of_the_files_the_config_names(t
     third = digests()
     assert len({first[0], second[0], third[0]}) == 3
     assert first[1:] == second[1:] == third[1:]  # sections without objects, and configs naming no files, keep theirs
+
+
+def test_mesh_paths_in_a_config_file_are_relative_to_the_file_from_any_working_directory(tmp_path, monkeypatch):
+    """A config shipped beside its meshes works wherever it is run from: its relative ``objects.user`` meshes and
+    ``objects.library_file`` are read from its folder (an included file's from the included file's), made absolute
+    on load; ``--set`` paths are read from the working directory."""
+    import trimesh
+
+    from components.objects.library import ObjectLibrary
+
+    project, shared, elsewhere = tmp_path / "project", tmp_path / "project" / "shared", tmp_path / "elsewhere"
+    (project / "meshes").mkdir(parents=True)
+    shared.mkdir()
+    elsewhere.mkdir()
+    trimesh.creation.box(extents=(0.03, 0.03, 0.04)).export(project / "meshes" / "mug.obj")
+    trimesh.creation.box(extents=(0.02, 0.02, 0.05)).export(shared / "part.obj")
+    (shared / "library.yaml").write_text("version: 1\nobjects:\n  block:\n    role: train\n"
+                                         "    shape: {type: box, size_m: [0.03, 0.03, 0.03]}\n")
+    (shared / "parts.yaml").write_text("objects:\n  library_file: library.yaml\n"
+                                       "  user:\n    - {name: part, mesh: part.obj}\n")
+    mine = project / "mine.yaml"
+    mine.write_text("include: [shared/parts.yaml]\nobjects:\n  train: [block, mug]\n  ood: [part]\n  many_object: block\n"
+                    "  user:\n    - {name: part, mesh: shared/part.obj}\n    - {name: mug, mesh: meshes/mug.obj}\n")
+    monkeypatch.chdir(elsewhere)
+    cfg = load_config("smoke", config_file=mine, workdir=tmp_path / "runs")
+    assert cfg.objects.library_file == (shared / "library.yaml").resolve()
+    assert [u.mesh for u in cfg.objects.user] == [(shared / "part.obj").resolve(), (project / "meshes" / "mug.obj").resolve()]
+    library = ObjectLibrary(cfg.objects, tmp_path / "cache")
+    assert library.get("mug").mesh.extents.max() == pytest.approx(0.04)
+
+    included = load_config("smoke", config_file=shared / "parts.yaml")  # relative to the included file itself
+    assert included.objects.user[0].mesh == (shared / "part.obj").resolve()
+
+    monkeypatch.chdir(project)
+    on_the_command_line = load_config("smoke", sets=["objects.user=[{name: mug, mesh: meshes/mug.obj}]"])
+    assert on_the_command_line.objects.user[0].mesh == (project / "meshes" / "mug.obj").resolve()
+
+
+def test_a_mesh_path_found_only_from_the_working_directory_still_loads_with_a_warning(tmp_path, monkeypatch, caplog):
+    """Until the fiftieth session a config file's relative mesh paths were read from the working directory: such a
+    config keeps working, with a warning saying how to write the path now; a path found nowhere is made absolute
+    from the file's folder, so the library's one-line error names where it was looked for."""
+    import logging
+
+    import trimesh
+
+    (tmp_path / "configs").mkdir()
+    trimesh.creation.box(extents=(0.03, 0.03, 0.04)).export(tmp_path / "mug.obj")
+    mine = tmp_path / "configs" / "mine.yaml"
+    mine.write_text("objects:\n  user:\n    - {name: mug, mesh: mug.obj}\n    - {name: cup, mesh: cup.obj}\n")
+    monkeypatch.chdir(tmp_path)
+    with caplog.at_level(logging.WARNING, logger="multigrasp"):
+        cfg = load_config("smoke", config_file=Path("configs/mine.yaml"))
+    assert cfg.objects.user[0].mesh == (tmp_path / "mug.obj").resolve()
+    assert cfg.objects.user[1].mesh == (tmp_path / "configs" / "cup.obj").resolve()
+    warning, = [r.getMessage() for r in caplog.records if "working directory" in r.getMessage()]
+    assert "mug.obj" in warning and "relative to the file or absolute" in warning

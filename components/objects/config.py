@@ -23,7 +23,7 @@ class UserMesh(Section):
     """A mesh brought by the user (OBJ, STL or PLY), added to the library under ``name``."""
 
     name: str = Field(..., min_length=1, description="Name used to refer to the object (in train/ood lists, scenes).")
-    mesh: Path = Field(..., description="Path of the mesh file (.obj, .stl or .ply); relative paths are resolved from the working directory.")
+    mesh: Path = Field(..., description="Path of the mesh file (.obj, .stl or .ply); relative paths are read from the folder of the config file that names them (from the working directory in --set).")
     scale: float = Field(1.0, gt=0, description="Uniform factor applied to the file's coordinates to get metres (e.g. 0.001 for a file in millimetres).")
     mass_kg: float | None = Field(None, gt=0, description="Mass in kg; default: volume x objects.default_density_kg_m3.")
     friction: float | None = Field(None, ge=0, description="Lateral friction coefficient; default: objects.default_friction.")
@@ -50,7 +50,7 @@ class ObjectsConfig(Section):
     train: list[str] = Field(default_factory=lambda: list(DEFAULT_TRAIN_OBJECTS), min_length=1, description="Training objects (the paper's 8): their singles and pairs make the training combinations.")
     ood: list[str] = Field(default_factory=lambda: list(DEFAULT_OOD_OBJECTS), description="Out-of-domain objects for the -Geo split (their singles and pairs).")
     user: list[UserMesh] = Field(default_factory=list, description="Meshes brought by the user; each becomes a library object usable in train/ood.")
-    library_file: Path | None = Field(None, description="YAML describing the object library; default: the project's assets/objects/library.yaml.")
+    library_file: Path | None = Field(None, description="YAML describing the object library (its mesh paths are relative to it); default: the project's assets/objects/library.yaml. A relative path is read from the folder of the config file that names it (from the working directory in --set).")
     heldout_pairs: list[tuple[str, str]] | None = Field(
         None,
         description="Training pairs held out as unseen combinations (-Com); default: consecutive pairs of `train`, cyclically (8 pairs covering all 8 objects).",
