@@ -129,6 +129,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--until", metavar="STAGE", help="stop after this stage (see `multigrasp stages`)")
     run.add_argument("--only", metavar="STAGE", action="append", help="run only this stage (repeatable); "
                                                                        "its upstream must be done")
+    run.add_argument("--evaluate", action="store_true",
+                     help="after the stages, run every `multigrasp evaluate` whose results are not current for this "
+                          "config (Table I: pregrasp synthetic and generated, execution of both), then `report`")
+    run.add_argument("--ablations", action="store_true",
+                     help="with --evaluate: also the generator's and the execution's ablations (Table II; trains "
+                          "the ablation specialists)")
 
     st = sub.add_parser("status", help="list each stage of a config as done / partial / stale / corrupt / missing",
                         description="Inspect the work dir without running anything: for every stage of the "
@@ -243,9 +249,21 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
     from tasks.tracking import ui_command
 
     cfg = _load(args)
+    evaluate = getattr(args, "evaluate", False)
+    if getattr(args, "ablations", False) and not evaluate:
+        raise MultigraspError("--ablations belongs to --evaluate — add --evaluate, or use `multigrasp evaluate ... "
+                              "--ablations`")
+    if evaluate and (only or args.only or getattr(args, "until", None)):
+        raise MultigraspError("--evaluate needs every stage — drop --until / --only, or run `multigrasp evaluate` "
+                              "for what those stages feed")
     modules = select_stages(only=only if only is not None else args.only, until=getattr(args, "until", None))
+    report = None
     with _using(cfg, create=True):
         ctx = run_pipeline(cfg, modules, command=command)
+        if evaluate:
+            from flows.evaluations import run_evaluations
+
+            report, evaluated = run_evaluations(cfg, args.ablations, ctx.console.print)
     console = ctx.console
     executed = sum(r.executed for r in ctx.results.values())
     cached = sum(r.cached for r in ctx.results.values())
@@ -253,6 +271,9 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
     console.print(f"\n[bold]done[/] in {ctx.wall_s:.1f}s wall time — {executed} unit(s) computed, {cached} served "
                   f"from cache{' (every stage served from cache)' if all_cached else ''}")
     console.print(f"results:   {cfg.run.workdir}   (stages/, results/)")
+    if report is not None:
+        console.print(f"tables:    {report.path} ({evaluated} evaluation(s) computed; the paper's figures beside "
+                      "each cell; JSON and markdown per evaluation beside it)")
     console.print(f"MLflow:    parent run {ctx.parent_run_id} in {ctx.tracking_uri}")
     console.print(f"open UI:   {ui_command(cfg.run.workdir)}   → http://127.0.0.1:{DEFAULT_UI_PORT}")
     return 0
@@ -332,6 +353,8 @@ def _cmd_stages(_: argparse.Namespace) -> int:
     for i, module in enumerate(STAGES, 1):
         after = f"  (after {', '.join(module.UPSTREAM)})" if module.UPSTREAM else ""
         print(f"{i}. {module.STAGE:<16} {module.DESCRIPTION}{after}")
+    print(f"   {'(evaluations)':<16} with `run --evaluate`: every `multigrasp evaluate` not current for the config "
+          "(Table I; + --ablations: Table II), then `multigrasp report`  (after every stage)")
     return 0
 
 

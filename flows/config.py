@@ -303,6 +303,24 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
     return digest({"sections": picked, "extra": extra})
 
 
+#: ``run`` fields that say how or where an invocation runs, not what it computes (left out of :func:`evaluation_key`;
+#: evaluations in worker processes give the same outcomes as in one, tests/test_flows.py).
+_HOW_TO_RUN = ("workdir", "runner", "max_workers", "torch_threads", "ray_address")
+
+
+def evaluation_key(cfg: PipelineConfig) -> str:
+    """Digest of every setting an evaluation's figures can depend on: the whole config (with the contents of the
+    object files it names) except where and how it runs (``run.workdir``, the runner and its workers) and MLflow's
+    settings.  ``evaluate`` writes it into each results file as ``config_key``; ``status`` and ``run --evaluate``
+    call a results file current only while it matches (its stage outputs are checked too)."""
+    from tasks.artifacts import digest
+
+    dump = cfg.model_dump(mode="json")
+    dump.pop("tracking", None)
+    dump["run"] = {k: v for k, v in dump["run"].items() if k not in _HOW_TO_RUN}
+    return digest({"config": dump, "objects.files": object_file_digests(cfg.objects)})
+
+
 def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
     """sha256 of each user mesh file (``objects.user``, resolved as the library resolves it: from the working
     directory), of a custom ``objects.library_file`` and of the mesh files it names (from its folder; the installed

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig
+from flows.config import PipelineConfig, evaluation_key
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 from flows.paper import PAPER_GENERATOR_ABLATIONS, pregrasp_paper
@@ -200,8 +200,9 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
     rows, tags = SOURCES[source](cfg)
     rows = with_paper(rows)
     results = cfg.run.workdir / "results"
-    json_path = atomic_write_json(results / f"pregrasp_{source}.json", {"rows": rows, "source": source,
-                                                                         "profile": cfg.profile, **tags})
+    json_path = atomic_write_json(results / f"pregrasp_{source}.json",
+                                  {"rows": rows, "source": source, "profile": cfg.profile,
+                                   "config_key": evaluation_key(cfg), **tags})
     markdown = pregrasp_markdown(rows, source)
     markdown_path = atomic_write_text(results / f"pregrasp_{source}.md", markdown)
     extra = []
@@ -212,7 +213,9 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
 
         ablation_rows = generator_ablation_rows(cfg, ours=next((r for r in rows if r["setting"] == "Gen-Pl"), None))
         ablation_rows = [{**r, "paper": PAPER_GENERATOR_ABLATIONS.get(r["setting"])} for r in ablation_rows]
-        extra.append(atomic_write_json(results / "ablation_generator.json", {"rows": ablation_rows, "profile": cfg.profile}))
+        extra.append(atomic_write_json(results / "ablation_generator.json",
+                                       {"rows": ablation_rows, "profile": cfg.profile, "config_key": evaluation_key(cfg),
+                                        **{k: v for k, v in tags.items() if k == "generator_manifest"}}))
         rows_for_metrics = [{**r, "setting": f"ablation {r['setting']}"} for r in ablation_rows]
         markdown += "\n" + generator_ablation_markdown(ablation_rows)
         markdown_path = atomic_write_text(markdown_path, markdown)

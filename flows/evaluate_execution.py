@@ -36,7 +36,7 @@ from typing import Any, Callable
 
 from components.errors import MultigraspError
 from flows.paper import PAPER_EXECUTION_ABLATIONS, execution_paper
-from flows.config import PipelineConfig, section_digest, with_overrides
+from flows.config import PipelineConfig, evaluation_key, section_digest, with_overrides
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
@@ -451,7 +451,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
     scratch = cfg.run.workdir / "results" / "execution"
     with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
         rows, ablation, gifs = _evaluate_settings(cfg, ablations, outputs, scratch, say, pool)
-    return _write_execution(cfg, outputs, rows, ablation, gifs)
+    return _write_execution(cfg, outputs, rows, ablation, gifs, ablations)
 
 
 def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scratch: Path, say, pool):
@@ -498,7 +498,8 @@ def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scra
     return rows, ablation, gifs
 
 
-def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: list, gifs: list) -> ExecutionReport:
+def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: list, gifs: list,
+                     ablations: bool) -> ExecutionReport:
     """The execution tables (JSON, markdown) under ``results/`` and their MLflow run."""
     from flows.runtime import make_tracker
 
@@ -506,7 +507,8 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     results = cfg.run.workdir / "results"
     specialists = outputs["specialists"]
     provenance = {"profile": cfg.profile, "records_source": stage.records_source, "after_reach": stage.eval_after_reach,
-                  "specialists_manifest": str(Path(specialists.folder) / "manifest.json")}
+                  "specialists_manifest": str(Path(specialists.folder) / "manifest.json"),
+                  "config_key": evaluation_key(cfg), "ablations": ablations}
     rows = [{**r, "paper": execution_paper(r["setting"])} for r in rows]
     ablation = [{**r, "paper": execution_paper("Syn-Pl" if r["setting"] == "Ours" else r["setting"])} for r in ablation]
     json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance})

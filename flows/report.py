@@ -200,7 +200,7 @@ EVALUATED_FROM = {
     "execution.json": [("specialists_manifest", "specialists")],
     "execution_generated.json": [("specialists_manifest", "specialists"), ("generator_manifest", "train-generator")],
     "ablation_execution.json": [("specialists_manifest", "specialists")],
-    "ablation_generator.json": [],
+    "ablation_generator.json": [("generator_manifest", "train-generator")],
 }
 
 
@@ -209,16 +209,23 @@ class EvaluationStatus:
     name: str
     state: str  # current | stale | unknown | missing
     detail: str
+    ablations: bool = False
+    """``ablation_execution.json``: written by ``evaluate execution --ablations`` (every ablation row), not only
+    with the rows ``evaluate execution`` always writes (Ours, w/o RL, the squeeze)."""
 
 
 def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[EvaluationStatus]:
-    """Whether each evaluation under ``results/`` was made from this config's stage outputs now (``current``), from
-    others (``stale``: a stage was recomputed, or another config evaluated last), or cannot say (``unknown``).  Stage
-    outputs are compared by their unit key (the folder name), so a moved work dir stays current.  ``finals``: each
+    """Whether each evaluation under ``results/`` was made from this config's stage outputs now and under its settings
+    (``current``), from others (``stale``: a stage was recomputed, or another config evaluated last), or cannot say
+    (``unknown``: a file from before evaluations recorded their settings).  Stage outputs are compared by their unit
+    key (the folder name) and settings by :func:`flows.config.evaluation_key`, so a moved work dir stays current.  ``finals``: each
     stage's output folder as ``status`` found it (None: not done), so its files are not verified a second time."""
     from flows.pipeline import stage_output
 
+    from flows.config import evaluation_key
+
     results = cfg.run.workdir / "results"
+    key = evaluation_key(cfg)
     outputs: dict[str, Any] = {}
     if finals is not None:
         outputs = {stage: (Path(folder) if folder else None) for stage, folder in finals.items()}
@@ -244,11 +251,20 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
             if not made_from or now is None or Path(made_from).parent.name != now.name:
                 stale.append(stage)
         profile = data.get("profile", "?")
-        if not checks:
-            rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records no stage output"))
-        elif stale:
+        settings = data.get("config_key")
+        if stale:
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; not from this config's {', '.join(stale)} "
                                                         f"output now — run `{command}` again"))
+        elif settings is not None and settings != key:
+            rows.append(EvaluationStatus(name, "stale", f"profile {profile}; evaluated under other settings than this "
+                                                        f"config's — run `{command}` again"))
+        elif not checks or settings is None:
+            what = "no stage output" if not checks else "no config key (written before the fiftieth session)"
+            rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records {what} — run `{command}` "
+                                                          "again to be sure"))
         else:
-            rows.append(EvaluationStatus(name, "current", f"profile {profile}"))
+            partial = name == "ablation_execution.json" and not data.get("ablations")
+            detail = f"profile {profile}" + (f"; Ours, w/o RL and the squeeze only — `{command}` for every row"
+                                             if partial else "")
+            rows.append(EvaluationStatus(name, "current", detail, ablations=not partial))
     return rows

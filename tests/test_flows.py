@@ -64,6 +64,57 @@ def test_lifting_in_worker_processes_gives_the_same_outcomes(smoke_runs, tmp_pat
     assert len(outcomes["1"]["Syn-Pl"]) == 4 and len({p["specialist"] for p in outcomes["1"]["Syn-Pl"]}) >= 1
 
 
+def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smoke_runs, tmp_path, capsys):
+    """``run --evaluate`` ends the pipeline with every evaluation of Table I and the report; a rerun computes none of
+    them; an evaluation whose results file is gone (a crash before it wrote it) is the only one computed again."""
+    import json
+    import shutil
+
+    from flows.report import evaluation_status
+
+    workdir = tmp_path / "runs"  # a copy: the shared smoke work dir's MLflow store is counted by another test
+    shutil.copytree(smoke_runs[0], workdir)
+    argv = ["run", "--evaluate", "--profile", "smoke", "--workdir", str(workdir)]
+    sets = ("specialists.eval_poses=2", "specialists.eval_trials=1", "specialists.gifs_per_outcome=0",
+            "generator.eval_scenes=1", "generator.eval_grasps_per_scene=4")
+    for item in sets:
+        argv += ["--set", item]
+    results = workdir / "results"
+    names = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json")
+
+    assert main(argv) == 0
+    first = capsys.readouterr().err
+    assert "4 evaluation(s) computed" in first and "every stage served from cache" in first
+    assert (results / "report.md").is_file() and "| Syn-Pl |" in (results / "report.md").read_text()
+    cfg = load_config("smoke", sets=list(sets), workdir=workdir)
+    assert {r.name: r.state for r in evaluation_status(cfg) if r.name in names} == dict.fromkeys(names, "current")
+    written = {name: (results / name).stat().st_mtime_ns for name in names}
+    keys = {json.loads((results / name).read_text())["config_key"] for name in names}
+    assert len(keys) == 1
+
+    assert main(argv) == 0
+    assert "0 evaluation(s) computed" in capsys.readouterr().err
+    assert {name: (results / name).stat().st_mtime_ns for name in names} == written
+
+    (results / "execution_generated.json").unlink()
+    assert main(argv) == 0
+    third = capsys.readouterr().err
+    assert "1 evaluation(s) computed" in third and "execution --source generated (execution_generated.json missing)" in third
+    assert all((results / name).stat().st_mtime_ns == written[name] for name in names[:3])
+    # other settings make every evaluation stale, named by `status`
+    other = load_config("smoke", sets=[*sets, "specialists.eval_trials=2"], workdir=workdir)
+    stale = {r.name: r for r in evaluation_status(other) if r.name in names}
+    assert all(r.state == "stale" and "other settings" in r.detail for r in stale.values())
+
+
+def test_run_evaluate_needs_every_stage(tmp_path, capsys):
+    assert main(["run", "--evaluate", "--until", "scenes", "--workdir", str(tmp_path)]) == 2
+    assert main(["run", "--ablations", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "--evaluate needs every stage" in err[0] and "--ablations belongs to --evaluate" in err[1]
+    assert not (tmp_path / "stages").exists()
+
+
 def test_smoke_run_prints_its_wall_time(tmp_path, capsys):
     assert _run(tmp_path, *SMALL) == 0
     assert _run(tmp_path, *SMALL) == 0

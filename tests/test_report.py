@@ -94,7 +94,7 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     """An evaluation is current while the stage output it was made from is this config's output now (compared by
     unit key, so a moved work dir stays current); another config's or an older output makes it stale."""
     import flows.pipeline
-    from flows.config import load_config
+    from flows.config import evaluation_key, load_config
     from flows.report import evaluation_status
 
     cfg = load_config("smoke", workdir=tmp_path)
@@ -109,7 +109,8 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     results = tmp_path / "results"
     results.mkdir()
     (results / "pregrasp_synthetic.json").write_text(json.dumps(
-        {"rows": [], "profile": "smoke", "synthesize_manifest": "/elsewhere/stages/synthesize/aaaa/manifest.json"}))
+        {"rows": [], "profile": "smoke", "synthesize_manifest": "/elsewhere/stages/synthesize/aaaa/manifest.json",
+         "config_key": evaluation_key(cfg)}))
     (results / "execution.json").write_text(json.dumps(
         {"rows": [], "profile": "bench", "specialists_manifest": str(tmp_path / "stages/specialists/cccc/manifest.json")}))
     (results / "execution_generated.json").write_text(json.dumps(
@@ -120,6 +121,19 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     assert states["execution.json"][0] == "stale" and "multigrasp evaluate execution" in states["execution.json"][1]
     assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
     assert states["pregrasp_generated.json"][0] == "missing"
+    # made from this config's outputs, but under other settings (or before the settings were recorded)
+    other = load_config("smoke", sets=["specialists.eval_poses=7"], workdir=tmp_path)
+    assert evaluation_key(other) != evaluation_key(cfg)
+    assert evaluation_key(load_config("smoke", sets=["run.max_workers=1"], workdir=tmp_path / "moved")) == evaluation_key(cfg)
+    state, detail = next((r.state, r.detail) for r in evaluation_status(other) if r.name == "pregrasp_synthetic.json")
+    assert state == "stale" and "other settings" in detail
+    (results / "pregrasp_generated.json").write_text(json.dumps(
+        {"rows": [], "profile": "smoke", "generator_manifest": "x/manifest.json"}))
+    now["train-generator"] = tmp_path / "x"
+    state, detail = next((r.state, r.detail) for r in evaluation_status(cfg) if r.name == "pregrasp_generated.json")
+    assert state == "unknown" and "no config key" in detail
+    del now["train-generator"]
+    (results / "pregrasp_generated.json").unlink()
     # `multigrasp status` hands over the stage outputs it has verified: the same answer without verifying again
     monkeypatch.setattr(flows.pipeline, "stage_output", lambda c, stage: pytest.fail("verified a second time"))
     finals = {"synthesize": str(now["synthesize"]), "specialists": str(now["specialists"]), "train-generator": None}
