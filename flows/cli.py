@@ -298,15 +298,21 @@ def _cmd_status(args: argparse.Namespace) -> int:
     console = Console()
     console.print(table)
     if (cfg.run.workdir / "results").is_dir():
-        from flows.report import evaluation_status
+        from flows.report import TABLE_ONE_FILES, evaluation_status
 
         results = Table(title=f"evaluations in {cfg.run.workdir / 'results'}")
         for col in ("results file", "state", "note"):
             results.add_column(col)
         shades = {"current": "green", "stale": "magenta", "unknown": "yellow", "missing": "white"}
-        for row in evaluation_status(cfg, finals={r.name: r.folder for r in rows}):  # verified once, above
+        evaluations = evaluation_status(cfg, finals={r.name: r.folder for r in rows})  # verified once, above
+        for row in evaluations:
             results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
         console.print(results)
+        if any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES):
+            options = [f"--profile {cfg.profile}"] + ([f"--config {args.config}"] if args.config else [])
+            options += [f"--set {item}" for item in args.sets] + [f"--workdir {cfg.run.workdir}"]
+            console.print(f"`multigrasp run --evaluate {' '.join(options)}` computes the Table I evaluations that are "
+                          "not current, then the report")
     return 0
 
 

@@ -31,6 +31,9 @@ SOURCES = {
     "ablation_execution.json": "multigrasp evaluate execution --ablations",
 }
 
+#: the results files of Table I (``run --evaluate`` computes them; the ablation files need ``--ablations``).
+TABLE_ONE_FILES = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json")
+
 
 @dataclass
 class Report:

@@ -144,3 +144,10 @@ def test_evaluate_pregrasp_without_a_source_names_both(tmp_path, capsys):
     assert main(["evaluate", "pregrasp", "--workdir", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "--source synthetic" in err and "--source generated" in err and err.count("\n") == 1
+
+
+def test_status_names_the_command_that_computes_what_is_not_current(tmp_path, capsys):
+    (tmp_path / "results").mkdir()
+    assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path), "--set", "run.seed=3"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"multigrasp run --evaluate --profile smoke --set run.seed=3 --workdir {tmp_path}" in out
