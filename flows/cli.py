@@ -257,7 +257,7 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
         raise MultigraspError("--evaluate needs every stage — drop --until / --only, or run `multigrasp evaluate` "
                               "for what those stages feed")
     modules = select_stages(only=only if only is not None else args.only, until=getattr(args, "until", None))
-    report = None
+    report, evaluated = None, 0
     with _using(cfg, create=True):
         ctx = run_pipeline(cfg, modules, command=command)
         if evaluate:
@@ -271,8 +271,9 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
     console.print(f"\n[bold]done[/] in {ctx.wall_s:.1f}s wall time — {executed} unit(s) computed, {cached} served "
                   f"from cache{' (every stage served from cache)' if all_cached else ''}")
     console.print(f"results:   {cfg.run.workdir}   (stages/, results/)")
-    if report is not None:
-        console.print(f"tables:    {report.path} ({evaluated} evaluation(s) computed; the paper's figures beside "
+    if evaluate:
+        where = report.path if report is not None else cfg.run.workdir / "results"
+        console.print(f"tables:    {where} ({evaluated} evaluation(s) computed; the paper's figures beside "
                       "each cell; JSON and markdown per evaluation beside it)")
     console.print(f"MLflow:    parent run {ctx.parent_run_id} in {ctx.tracking_uri}")
     console.print(f"open UI:   {ui_command(cfg.run.workdir)}   → http://127.0.0.1:{DEFAULT_UI_PORT}")

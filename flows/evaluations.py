@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+from components.errors import MultigraspError
 from flows.config import PipelineConfig
 
 
@@ -65,7 +66,8 @@ def pending_evaluations(cfg: PipelineConfig, ablations: bool,
 
 def run_evaluations(cfg: PipelineConfig, ablations: bool, say: Callable[[str], None],
                     finals: dict[str, str | None] | None = None):
-    """Run every pending evaluation (:func:`pending_evaluations`), then write the report; returns it."""
+    """Run every pending evaluation (:func:`pending_evaluations`), then write the report; returns it (None, with a
+    line saying why, where another results file is unreadable) and how many evaluations were computed."""
     import time
 
     from flows.report import write_report
@@ -82,4 +84,8 @@ def run_evaluations(cfg: PipelineConfig, ablations: bool, say: Callable[[str], N
         start = time.perf_counter()
         evaluation.run(cfg)
         say(f"[bold]evaluate[/] {index}/{len(pending)} done in {time.perf_counter() - start:.1f}s")
-    return write_report(cfg.run.workdir), len(pending)
+    try:
+        return write_report(cfg.run.workdir), len(pending)
+    except MultigraspError as exc:  # another results file (an ablation's) unreadable: every evaluation is written
+        say(f"[yellow]report not written:[/] {exc}")
+        return None, len(pending)

@@ -151,3 +151,20 @@ def test_status_names_the_command_that_computes_what_is_not_current(tmp_path, ca
     assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path), "--set", "run.seed=3"]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert f"multigrasp run --evaluate --profile smoke --set run.seed=3 --workdir {tmp_path}" in out
+
+
+def test_run_evaluate_keeps_its_evaluations_when_another_results_file_is_unreadable(tmp_path, monkeypatch):
+    """The report at the end of ``run --evaluate`` reads every results file: a corrupt one that no evaluation of
+    this run rewrites (an ablation's) costs the report, with a line naming the fix, not the run."""
+    import flows.evaluations
+    from flows.config import load_config
+
+    monkeypatch.setattr(flows.evaluations, "planned_evaluations", lambda ablations: [])
+    monkeypatch.setattr(flows.evaluations, "pending_evaluations", lambda cfg, ablations, finals=None: [])
+    results = tmp_path / "results"
+    _write(results, "execution.json", [{"setting": "Syn-Pl", "succ": 0.3, "n_poses": 2, "trials": 1}])
+    (results / "ablation_execution.json").write_text("{truncated")
+    said = []
+    report, computed = flows.evaluations.run_evaluations(load_config("smoke", workdir=tmp_path), False, said.append)
+    assert report is None and computed == 0
+    assert "report not written" in said[-1] and "evaluate execution --ablations" in said[-1]
