@@ -31,6 +31,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 from components.errors import MultigraspError
@@ -257,18 +258,23 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
         raise MultigraspError("--evaluate needs every stage — drop --until / --only, or run `multigrasp evaluate` "
                               "for what those stages feed")
     modules = select_stages(only=only if only is not None else args.only, until=getattr(args, "until", None))
-    report, evaluated = None, 0
+    report, evaluated, evaluate_s = None, 0, 0.0
     with _using(cfg, create=True):
         ctx = run_pipeline(cfg, modules, command=command)
         if evaluate:
             from flows.evaluations import run_evaluations
 
-            report, evaluated = run_evaluations(cfg, args.ablations, ctx.console.print)
+            started = time.perf_counter()
+            report, evaluated = run_evaluations(cfg, args.ablations, ctx.console.print,
+                                                parent_run_id=ctx.parent_run_id)
+            evaluate_s = time.perf_counter() - started
     console = ctx.console
     executed = sum(r.executed for r in ctx.results.values())
     cached = sum(r.cached for r in ctx.results.values())
     all_cached = executed == 0
-    console.print(f"\n[bold]done[/] in {ctx.wall_s:.1f}s wall time — {executed} unit(s) computed, {cached} served "
+    total = f"{ctx.wall_s + evaluate_s:.1f}s wall time ({ctx.wall_s:.1f}s stages, {evaluate_s:.1f}s evaluations)" \
+        if evaluate else f"{ctx.wall_s:.1f}s wall time"
+    console.print(f"\n[bold]done[/] in {total} — {executed} unit(s) computed, {cached} served "
                   f"from cache{' (every stage served from cache)' if all_cached else ''}")
     console.print(f"results:   {cfg.run.workdir}   (stages/, results/)")
     if evaluate:

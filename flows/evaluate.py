@@ -190,7 +190,8 @@ def generator_ablation_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False) -> PregraspReport:
+def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False,
+                      parent_run_id: str | None = None) -> PregraspReport:
     """Write ``results/pregrasp_<source>.json`` + ``.md`` and log both to their own MLflow run; with
     ``ablations`` (source ``generated``) also ``results/ablation_generator.json``."""
     from flows.runtime import make_tracker
@@ -223,7 +224,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False)
         rows_for_metrics = []
 
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(f"evaluate:pregrasp:{source}", tags={"command": "evaluate", "evaluation": "pregrasp",
+    run_id = tracker.start_run(f"evaluate:pregrasp:{source}", parent_run_id, tags={"command": "evaluate", "evaluation": "pregrasp",
                                                                      "source": source, "profile": cfg.profile, **tags})
     metrics = {f"{row['setting']}/{key}": row[key] for row in rows + rows_for_metrics
                for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n", "time_256_s", "q1_all", "pn_mm_all")

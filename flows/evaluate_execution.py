@@ -441,7 +441,7 @@ class _Progress:
                  f"lifted {out.wins}/{out.total}{extra}, elapsed {elapsed:.0f}s{eta}")
 
 
-def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> ExecutionReport:
+def evaluate_execution(cfg: PipelineConfig, ablations: bool = False, parent_run_id: str | None = None) -> ExecutionReport:
     """Write the execution tables (module docstring).  With ``ablations`` the specialists of every
     :data:`ABLATIONS` config are trained first (the specialists stage with those overrides: cached units)."""
     from flows.runtime import make_console
@@ -451,7 +451,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False) -> Executio
     scratch = cfg.run.workdir / "results" / "execution"
     with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
         rows, ablation, gifs = _evaluate_settings(cfg, ablations, outputs, scratch, say, pool)
-    return _write_execution(cfg, outputs, rows, ablation, gifs, ablations)
+    return _write_execution(cfg, outputs, rows, ablation, gifs, ablations, parent_run_id)
 
 
 def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scratch: Path, say, pool):
@@ -499,7 +499,7 @@ def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scra
 
 
 def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: list, gifs: list,
-                     ablations: bool) -> ExecutionReport:
+                     ablations: bool, parent_run_id: str | None = None) -> ExecutionReport:
     """The execution tables (JSON, markdown) under ``results/`` and their MLflow run."""
     from flows.runtime import make_tracker
 
@@ -517,7 +517,7 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     markdown_path = atomic_write_text(results / "execution.md", markdown)
 
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run("evaluate:execution", tags={"command": "evaluate", "evaluation": "execution",
+    run_id = tracker.start_run("evaluate:execution", parent_run_id, tags={"command": "evaluate", "evaluation": "execution",
                                                            "profile": cfg.profile})
     tracker.log_metrics(run_id, {f"{r['setting']}/succ": r["succ"] for r in rows + ablation if r["succ"] is not None})
     for path in (json_path, ablation_path, markdown_path):

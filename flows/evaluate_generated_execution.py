@@ -53,7 +53,7 @@ def generated_execution_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate_generated_execution(cfg: PipelineConfig) -> GeneratedExecutionReport:
+def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None = None) -> GeneratedExecutionReport:
     """Write the Gen execution table (module docstring)."""
     from components.hand import HandModel
     from components.objects import ObjectLibrary
@@ -81,7 +81,7 @@ def evaluate_generated_execution(cfg: PipelineConfig) -> GeneratedExecutionRepor
     markdown = generated_execution_markdown(rows)
     markdown_path = atomic_write_text(results / "execution_generated.md", markdown)
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run("evaluate:execution:generated",
+    run_id = tracker.start_run("evaluate:execution:generated", parent_run_id,
                                tags={"command": "evaluate", "evaluation": "execution", "source": "generated",
                                      "profile": cfg.profile})
     metrics = {f"{r['setting']}/{key}": r[key] for r in rows for key in ("succ", "kept", "w/o RL", SQUEEZE_ROW)

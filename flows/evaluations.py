@@ -22,7 +22,8 @@ class Evaluation:
 
     label: str
     files: tuple[str, ...]
-    run: Callable[[PipelineConfig], object]
+    run: Callable[[PipelineConfig, str | None], object]
+    """(config, the MLflow run to nest its run under) -> its report."""
     needs_ablations: bool = False
     """Current only if ``ablation_execution.json`` holds every ablation row (``evaluate execution --ablations``)."""
 
@@ -38,11 +39,11 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
     execution = ("execution.json", "ablation_execution.json") if ablations else ("execution.json",)
     return [
         Evaluation("evaluate pregrasp --source synthetic", ("pregrasp_synthetic.json",),
-                   lambda cfg: evaluate_pregrasp(cfg, "synthetic")),
+                   lambda cfg, parent: evaluate_pregrasp(cfg, "synthetic", parent_run_id=parent)),
         Evaluation("evaluate pregrasp --source generated" + (" --ablations" if ablations else ""), generated,
-                   lambda cfg: evaluate_pregrasp(cfg, "generated", ablations=ablations)),
+                   lambda cfg, parent: evaluate_pregrasp(cfg, "generated", ablations, parent)),
         Evaluation("evaluate execution" + (" --ablations" if ablations else ""), execution,
-                   lambda cfg: evaluate_execution(cfg, ablations=ablations), needs_ablations=ablations),
+                   lambda cfg, parent: evaluate_execution(cfg, ablations, parent), needs_ablations=ablations),
         Evaluation("evaluate execution --source generated", ("execution_generated.json",),
                    evaluate_generated_execution),
     ]
@@ -65,9 +66,10 @@ def pending_evaluations(cfg: PipelineConfig, ablations: bool,
 
 
 def run_evaluations(cfg: PipelineConfig, ablations: bool, say: Callable[[str], None],
-                    finals: dict[str, str | None] | None = None):
+                    finals: dict[str, str | None] | None = None, parent_run_id: str | None = None):
     """Run every pending evaluation (:func:`pending_evaluations`), then write the report; returns it (None, with a
-    line saying why, where another results file is unreadable) and how many evaluations were computed."""
+    line saying why, where another results file is unreadable) and how many evaluations were computed.  Their MLflow
+    runs are children of ``parent_run_id`` (``run --evaluate``: the pipeline's run) when given."""
     import time
 
     from flows.report import write_report
@@ -82,10 +84,10 @@ def run_evaluations(cfg: PipelineConfig, ablations: bool, say: Callable[[str], N
     for index, (evaluation, why) in enumerate(pending, 1):
         say(f"[bold]evaluate[/] {index}/{len(pending)} {evaluation.label[len('evaluate '):]} ({why})")
         start = time.perf_counter()
-        evaluation.run(cfg)
+        evaluation.run(cfg, parent_run_id)
         say(f"[bold]evaluate[/] {index}/{len(pending)} done in {time.perf_counter() - start:.1f}s")
     try:
-        return write_report(cfg.run.workdir), len(pending)
+        return write_report(cfg.run.workdir, parent_run_id, cfg.tracking.experiment), len(pending)
     except MultigraspError as exc:  # another results file (an ablation's) unreadable: every evaluation is written
         say(f"[yellow]report not written:[/] {exc}")
         return None, len(pending)

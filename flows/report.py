@@ -113,7 +113,7 @@ def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: di
     return lines
 
 
-def write_report(workdir: Path) -> Report:
+def write_report(workdir: Path, parent_run_id: str | None = None, experiment: str | None = None) -> Report:
     """Write ``<workdir>/results/report.md`` from the evaluation results there (module docstring)."""
     results = Path(workdir) / "results"
     if not results.is_dir():
@@ -148,7 +148,7 @@ def write_report(workdir: Path) -> Report:
     csv_path = atomic_write_text(results / "report.csv", report_csv(pregrasp, execution, ablation_execution,
                                                                     _rows(data["ablation_generator.json"])))
     return Report(path=path, markdown=markdown, missing=missing, csv_path=csv_path,
-                  run_id=_log_report(workdir, path, csv_path, data))
+                  run_id=_log_report(workdir, path, csv_path, data, parent_run_id, experiment))
 
 
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
@@ -180,16 +180,17 @@ def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_e
     return out.getvalue()
 
 
-def _log_report(workdir: Path, markdown: Path, csv_path: Path, data: dict[str, Any]) -> str:
+def _log_report(workdir: Path, markdown: Path, csv_path: Path, data: dict[str, Any], parent_run_id: str | None = None,
+                experiment: str | None = None) -> str:
     """A run ``report`` in the work dir's MLflow store (or ``MLFLOW_TRACKING_URI``'s) with both files, tagged with the
     profile of each source."""
     from flows.config import TrackingConfig
     from tasks.tracking import Tracker, default_tracking_uri
 
-    tracker = Tracker(default_tracking_uri(Path(workdir)), TrackingConfig().experiment, Path(workdir))
+    tracker = Tracker(default_tracking_uri(Path(workdir)), experiment or TrackingConfig().experiment, Path(workdir))
     tags = {"command": "report", **{f"source.{name}": value.get("profile", "?")
                                     for name, value in data.items() if value is not None}}
-    run_id = tracker.start_run("report", tags=tags)
+    run_id = tracker.start_run("report", parent_run_id, tags=tags)
     for path in (markdown, csv_path):
         tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)

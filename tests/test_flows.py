@@ -91,6 +91,13 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     written = {name: (results / name).stat().st_mtime_ns for name in names}
     keys = {json.loads((results / name).read_text())["config_key"] for name in names}
     assert len(keys) == 1
+    from mlflow.tracking import MlflowClient  # the evaluations' runs and the report's are the pipeline run's children
+
+    client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
+    runs = client.search_runs(client.get_experiment_by_name("multigrasp").experiment_id)
+    nested = [r for r in runs if r.info.run_name.startswith("evaluate:") or r.info.run_name == "report"]
+    parents = {r.data.tags.get("mlflow.parentRunId") for r in nested}
+    assert len(nested) == 5 and len(parents) == 1 and client.get_run(parents.pop()).info.run_name == "run:smoke"
 
     assert main(argv) == 0
     assert "0 evaluation(s) computed" in capsys.readouterr().err
