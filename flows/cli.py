@@ -147,17 +147,24 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("stages", help="show the stage DAG and what each stage does",
                    description="List the pipeline's stages in execution order with their upstream stages.")
 
-    sc = sub.add_parser("scenes", help="run only the scenes stage (placements, settling, renders)",
+    upstream = (" Its upstream stages run first where they are not done for the same config (served from cache "
+                "where they are); `multigrasp run --only STAGE` runs the stage alone.")
+    sc = sub.add_parser("scenes", help="run the scenes stage (placements, settling, renders)",
                         description="Sample tabletop placements for every object combination of the profile, "
                                     "settle them in PyBullet, save them and render a few to PNG (MLflow).")
     _config_args(sc)
 
-    sy = sub.add_parser("synthesize", help="run only the synthesize stage (grasps per scene, Q1 / PN, renders)",
+    sy = sub.add_parser("synthesize", help="run the synthesize stage (grasps per scene, Q1 / PN, renders)",
                         description="Synthesise multi-object pre-grasps for the scenes of the scenes stage (DFC "
                                     "energy, annealed MALA with contact switching, Adam refinement, filter), "
                                     "measure Q1 and PN of the accepted ones, write Parquet tables, statistics and "
-                                    "render grids (MLflow). The scenes stage must be done for the same config.")
+                                    "render grids (MLflow)." + upstream)
     _config_args(sy)
+
+    for name, stage, text in SINGLE_STAGE_COMMANDS[2:]:
+        single = sub.add_parser(name, aliases=[stage] if stage != name else [], help=f"run the {stage} stage ({text})",
+                                description=f"Run the {stage} stage: {text}." + upstream)
+        _config_args(single)
 
     ge = sub.add_parser("generate", help="pre-grasps for any objects from the trained generator (+ IK, refinement, renders)",
                         description="Sample pre-grasps with the train-generator stage's model for a sampled scene of "
@@ -243,6 +250,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # --------------------------------------------------------------------------- commands
+
+
+#: single-stage commands: (command, stage, what it does).  DESIGN §1 names the PPO stage ``train-lifting``.
+SINGLE_STAGE_COMMANDS = [
+    ("scenes", "scenes", "placements, settling, renders"),
+    ("synthesize", "synthesize", "grasps per scene, Q1 / PN, renders"),
+    ("train-generator", "train-generator", "the diffusion pre-grasp generator; resumes from its last checkpoint"),
+    ("pointnet", "pointnet", "pre-training of the frozen PointNet encoder of the lift policies"),
+    ("train-lifting", "specialists", "bins of the training pre-grasps and one TorchRL PPO lift specialist per bin; "
+                                     "each resumes from its last checkpoint"),
+    ("reach", "reach", "planned reaches to the specialists' pre-grasps, run in PyBullet"),
+]
+
+
+def _single_stage(command: str, stage: str):
+    """The handler of a single-stage command: the stage and its upstream (:func:`flows.pipeline.with_upstream`)."""
+    from flows.pipeline import with_upstream
+
+    return lambda args: _cmd_run(args, command=command, only=with_upstream(stage))
 
 
 def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | None = None) -> int:
@@ -490,8 +516,8 @@ def main(argv: list[str] | None = None) -> int:
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui, "prune": _cmd_prune,
                 "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
-                "scenes": lambda a: _cmd_run(a, command="scenes", only=["scenes"]),
-                "synthesize": lambda a: _cmd_run(a, command="synthesize", only=["synthesize"])}
+                **{name: _single_stage(name, stage) for name, stage, _ in SINGLE_STAGE_COMMANDS},
+                **{stage: _single_stage(name, stage) for name, stage, _ in SINGLE_STAGE_COMMANDS}}
     stopper = Interrupts()
     previous = stopper.install()
     try:

@@ -31,6 +31,21 @@ def stage_names() -> list[str]:
     return [module.STAGE for module in STAGES]
 
 
+def with_upstream(name: str) -> list[str]:
+    """``name`` and every stage it needs, directly or not, in execution order (what a single-stage command runs:
+    the upstream stages already done are served from cache)."""
+    names = stage_names()
+    if name not in names:
+        raise MultigraspError(f"unknown stage '{name}' — stages are: {', '.join(names)}")
+    needed, todo = set(), [name]
+    while todo:
+        stage = todo.pop()
+        if stage not in needed:
+            needed.add(stage)
+            todo.extend(STAGES[names.index(stage)].UPSTREAM)
+    return [stage for stage in names if stage in needed]
+
+
 def select_stages(only: Sequence[str] | None = None, until: str | None = None) -> list[ModuleType]:
     """Stages to run: ``only`` (plus nothing else) or every stage up to ``until`` inclusive."""
     names = stage_names()
