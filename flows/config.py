@@ -308,15 +308,32 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
 _HOW_TO_RUN = ("workdir", "runner", "max_workers", "torch_threads", "ray_address")
 
 
-def evaluation_key(cfg: PipelineConfig) -> str:
-    """Digest of every setting an evaluation's figures can depend on: the whole config (with the contents of the
-    object files it names) except where and how it runs (``run.workdir``, the runner and its workers) and MLflow's
-    settings.  ``evaluate`` writes it into each results file as ``config_key``; ``status`` and ``run --evaluate``
-    call a results file current only while it matches (its stage outputs are checked too)."""
+#: results file → the config sections its evaluation never reads (neither directly nor through the stage outputs it
+#: lifts or scores), left out of its :func:`evaluation_key`: pre-grasp quality does not depend on the lift, and the
+#: synthesised pre-grasps' lifts do not depend on the generator.
+EVALUATION_IGNORES: dict[str, tuple[str, ...]] = {
+    "pregrasp_synthetic.json": ("generator", "pointnet", "specialists", "lift", "reach"),
+    "pregrasp_generated.json": ("pointnet", "specialists", "lift", "reach"),
+    "ablation_generator.json": ("pointnet", "specialists", "lift", "reach"),
+    "execution.json": ("generator",),
+    "ablation_execution.json": ("generator",),
+    "execution_generated.json": (),
+}
+
+
+def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
+    """Digest of every setting the figures of ``results_file`` can depend on: the config (with the contents of the
+    object files it names) except where and how it runs (``run.workdir``, the runner and its workers), MLflow's
+    settings and the sections that evaluation never reads (:data:`EVALUATION_IGNORES`).  ``evaluate`` writes it
+    into each results file as ``config_key``; ``status`` and ``run --evaluate`` call a results file current only
+    while it matches (its stage outputs are checked too)."""
     from tasks.artifacts import digest
 
+    if results_file not in EVALUATION_IGNORES:
+        raise ValueError(f"unknown results file {results_file!r}")
     dump = cfg.model_dump(mode="json")
-    dump.pop("tracking", None)
+    for section in ("tracking", *EVALUATION_IGNORES[results_file]):
+        dump.pop(section, None)
     dump["run"] = {k: v for k, v in dump["run"].items() if k not in _HOW_TO_RUN}
     return digest({"config": dump, "objects.files": object_file_digests(cfg.objects)})
 

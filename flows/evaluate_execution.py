@@ -508,11 +508,14 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     specialists = outputs["specialists"]
     provenance = {"profile": cfg.profile, "records_source": stage.records_source, "after_reach": stage.eval_after_reach,
                   "specialists_manifest": str(Path(specialists.folder) / "manifest.json"),
-                  "config_key": evaluation_key(cfg), "ablations": ablations}
+                  "ablations": ablations}
     rows = [{**r, "paper": execution_paper(r["setting"])} for r in rows]
     ablation = [{**r, "paper": execution_paper("Syn-Pl" if r["setting"] == "Ours" else r["setting"])} for r in ablation]
-    json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance})
-    ablation_path = atomic_write_json(results / "ablation_execution.json", {"rows": ablation, **provenance})
+    json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance,
+                                                                "config_key": evaluation_key(cfg, "execution.json")})
+    ablation_path = atomic_write_json(results / "ablation_execution.json",
+                                      {"rows": ablation, **provenance,
+                                       "config_key": evaluation_key(cfg, "ablation_execution.json")})
     markdown = execution_markdown(rows, ablation, stage.records_source)
     markdown_path = atomic_write_text(results / "execution.md", markdown)
 

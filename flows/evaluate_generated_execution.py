@@ -76,7 +76,8 @@ def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None 
                               "config's scenes stage — give the splits pair scenes (scenes.per_combination)")
     provenance = {"profile": cfg.profile, "source": "generated", "after_reach": stage.eval_after_reach,
                   "specialists_manifest": str(Path(outputs["specialists"].folder) / "manifest.json"),
-                  "generator_manifest": str(Path(generator.folder) / "manifest.json"), "config_key": evaluation_key(cfg)}
+                  "generator_manifest": str(Path(generator.folder) / "manifest.json"),
+                  "config_key": evaluation_key(cfg, "execution_generated.json")}
     json_path = atomic_write_json(results / "execution_generated.json", {"rows": rows, **provenance})
     markdown = generated_execution_markdown(rows)
     markdown_path = atomic_write_text(results / "execution_generated.md", markdown)

@@ -229,7 +229,6 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
     from flows.config import evaluation_key
 
     results = cfg.run.workdir / "results"
-    key = evaluation_key(cfg)
     outputs: dict[str, Any] = {}
     if finals is not None:
         outputs = {stage: (Path(folder) if folder else None) for stage, folder in finals.items()}
@@ -259,7 +258,7 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
         if stale:
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; not from this config's {', '.join(stale)} "
                                                         f"output now — run `{command}` again"))
-        elif settings is not None and settings != key:
+        elif settings is not None and settings != evaluation_key(cfg, name):
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; evaluated under other settings than this "
                                                         f"config's — run `{command}` again"))
         elif not checks or settings is None:

@@ -110,7 +110,7 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     results.mkdir()
     (results / "pregrasp_synthetic.json").write_text(json.dumps(
         {"rows": [], "profile": "smoke", "synthesize_manifest": "/elsewhere/stages/synthesize/aaaa/manifest.json",
-         "config_key": evaluation_key(cfg)}))
+         "config_key": evaluation_key(cfg, "pregrasp_synthetic.json")}))
     (results / "execution.json").write_text(json.dumps(
         {"rows": [], "profile": "bench", "specialists_manifest": str(tmp_path / "stages/specialists/cccc/manifest.json")}))
     (results / "execution_generated.json").write_text(json.dumps(
@@ -122,9 +122,14 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
     assert states["pregrasp_generated.json"][0] == "missing"
     # made from this config's outputs, but under other settings (or before the settings were recorded)
-    other = load_config("smoke", sets=["specialists.eval_poses=7"], workdir=tmp_path)
-    assert evaluation_key(other) != evaluation_key(cfg)
-    assert evaluation_key(load_config("smoke", sets=["run.max_workers=1"], workdir=tmp_path / "moved")) == evaluation_key(cfg)
+    other = load_config("smoke", sets=["objects.surface_points=1024"], workdir=tmp_path)
+    name = "pregrasp_synthetic.json"
+    assert evaluation_key(other, name) != evaluation_key(cfg, name)
+    moved = load_config("smoke", sets=["run.max_workers=1", "tracking.renders=false"], workdir=tmp_path / "moved")
+    assert evaluation_key(moved, name) == evaluation_key(cfg, name)  # where and how it runs: the same figures
+    lifted = load_config("smoke", sets=["specialists.eval_poses=7"], workdir=tmp_path)  # lift settings: lift rows
+    assert evaluation_key(lifted, name) == evaluation_key(cfg, name)
+    assert evaluation_key(lifted, "execution.json") != evaluation_key(cfg, "execution.json")
     state, detail = next((r.state, r.detail) for r in evaluation_status(other) if r.name == "pregrasp_synthetic.json")
     assert state == "stale" and "other settings" in detail
     (results / "pregrasp_generated.json").write_text(json.dumps(
