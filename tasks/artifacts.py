@@ -21,13 +21,17 @@ manifest) makes the unit count as not done, so it is recomputed instead of trust
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import fcntl
+import functools
+import io
 import json
 import os
 import sys
 import tempfile
 import time
+import tokenize
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -188,12 +192,76 @@ def digest(obj: Any) -> str:
     return sha256_bytes(canonical_json(obj).encode())
 
 
+#: keyword arguments whose string value documents a field or an option and never changes what code computes
+#: (pydantic's ``Field(description=...)``); left out of :func:`python_code_text`.
+DOC_KEYWORDS = frozenset({"description"})
+
+
+def _is_doc_string(node: ast.AST) -> bool:
+    """A string literal, or a concatenation of them (``"a" "b"`` is one literal; ``"a" + "b"`` is not)."""
+    if isinstance(node, ast.Constant):
+        return isinstance(node.value, str)
+    return isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add) and _is_doc_string(node.left) \
+        and _is_doc_string(node.right)
+
+
+def python_code_text(source: str) -> str:
+    """``source`` without what only documents it: comments, docstrings (every string literal that stands alone as a
+    statement: module, class and function docstrings and the attribute docstrings under fields) and the string
+    values of :data:`DOC_KEYWORDS` arguments, with blank lines and trailing spaces dropped.  Works on the text (the
+    spans :mod:`ast` and :mod:`tokenize` locate), so the result does not depend on the Python version.  A file that
+    does not parse is returned whole."""
+    try:
+        tree = ast.parse(source)
+        comments = [tok for tok in tokenize.generate_tokens(io.StringIO(source).readline)
+                    if tok.type == tokenize.COMMENT]
+    except (SyntaxError, tokenize.TokenError, ValueError):
+        return source
+    lines = source.splitlines(keepends=True)
+    starts = [0]
+    for line in lines:
+        starts.append(starts[-1] + len(line))
+
+    def offset(lineno: int, byte_col: int) -> int:  # ast columns count UTF-8 bytes
+        line = lines[lineno - 1]
+        return starts[lineno - 1] + len(line.encode()[:byte_col].decode(errors="ignore"))
+
+    spans = [(starts[t.start[0] - 1] + t.start[1], starts[t.end[0] - 1] + t.end[1]) for t in comments]
+    for node in ast.walk(tree):
+        doc = None
+        if isinstance(node, ast.Expr) and _is_doc_string(node.value):
+            doc = node
+        elif isinstance(node, ast.keyword) and node.arg in DOC_KEYWORDS and _is_doc_string(node.value):
+            doc = node.value
+        if doc is not None:
+            spans.append((offset(doc.lineno, doc.col_offset), offset(doc.end_lineno, doc.end_col_offset)))
+    kept, at = [], 0
+    for start, end in sorted(spans):
+        if start >= at:
+            kept.append(source[at:start])
+            at = end
+        else:
+            at = max(at, end)
+    kept.append(source[at:])
+    return "\n".join(line.rstrip() for line in "".join(kept).splitlines() if line.strip()) + "\n"
+
+
+@functools.lru_cache(maxsize=4096)
+def _file_code_digest(path: str, mtime_ns: int, size: int) -> str:
+    """sha256 of a project file as :func:`code_version` counts it (memoised by path, mtime and size)."""
+    if path.endswith(".py"):
+        return sha256_bytes(python_code_text(Path(path).read_text(encoding="utf-8")).encode())
+    return sha256_file(Path(path))
+
+
 def code_version(*relative_dirs: str, root: Path = REPO_ROOT) -> str:
     """Digest of every source/asset file under the given project folders.
 
     Prefect's ``TASK_SOURCE`` hashes only a task's own body, so an edit in
     ``components/`` would not invalidate a cached result.  Hashing the component
-    package (and its assets) makes any code change produce a new cache key.
+    package (and its assets) makes any code change produce a new cache key.  Python files count without their
+    comments, docstrings and field descriptions (:func:`python_code_text`): an edit of the documentation alone
+    keeps every finished stage (until the fiftieth session it recomputed them all).  Asset files count byte for byte.
     """
     entries: list[tuple[str, str]] = []
     for rel in sorted(relative_dirs):
@@ -202,8 +270,9 @@ def code_version(*relative_dirs: str, root: Path = REPO_ROOT) -> str:
         for path in files:
             if "__pycache__" in path.parts or path.suffix in {".pyc", ".pyo"}:
                 continue
-            entries.append((str(path.relative_to(root)), sha256_file(path)))
-    return digest(entries)[:16]
+            stat = path.stat()
+            entries.append((str(path.relative_to(root)), _file_code_digest(str(path), stat.st_mtime_ns, stat.st_size)))
+    return digest(["python code without its documentation", entries])[:16]
 
 
 # --------------------------------------------------------------------------- atomic writes

@@ -81,6 +81,43 @@ def test_code_version_changes_when_a_source_file_changes(tmp_path):
     (pkg / "a.py").write_text("x = 1\n")
     before = code_version("components/thing", root=tmp_path)
     (pkg / "a.py").write_text("x = 2\n")
+    os.utime(pkg / "a.py", ns=(10**9, 10**9))  # another mtime whatever the clock's tick: digests are memoised by it
+    assert code_version("components/thing", root=tmp_path) != before
+
+
+def test_code_version_ignores_comments_docstrings_and_field_descriptions_but_not_code_or_assets(tmp_path):
+    """An edit of the documentation alone keeps every finished stage; any edit of what runs, or of an asset file,
+    keys new units."""
+    pkg = tmp_path / "components" / "thing"
+    pkg.mkdir(parents=True)
+    base = ('"""Module docstring."""\n\nfrom pydantic import BaseModel, Field\n\n\n'
+            'class Config(BaseModel):\n    """A config."""\n\n'
+            '    size: float = Field(1.0, gt=0, description="Size (m).")  # a comment\n'
+            '    """Attribute docstring."""\n\n\n'
+            'def area(c: Config) -> float:\n    """Area."""\n    label = "é"; """after a non-ASCII literal"""\n'
+            '    return c.size ** 2  # square\n')
+    (pkg / "data.yaml").write_text("a: 1\n")
+
+    writes = iter(range(1, 100))
+
+    def version(text: str) -> str:  # each write its own mtime: digests are memoised by path, mtime and size
+        (pkg / "a.py").write_text(text)
+        stamp = next(writes) * 10**9
+        os.utime(pkg / "a.py", ns=(stamp, stamp))
+        return code_version("components/thing", root=tmp_path)
+
+    before = version(base)
+    documented = (base.replace('"""A config."""', '"""A config,\n    documented at length."""')
+                  .replace('description="Size (m)."', 'description="Size of the thing (m); "\n        "more words."')
+                  .replace("# a comment", "# another comment").replace('"""Area."""', "# Area.")
+                  .replace('"""after a non-ASCII literal"""', '"""changed"""') + "\n\n# trailing comment\n")
+    assert version(documented) == before
+    assert version(base.replace("c.size ** 2", "c.size ** 3")) != before
+    assert version(base.replace('"é"', '"e"')) != before  # a string that is not documentation is code
+    assert version(base.replace("gt=0", "ge=0")) != before
+    version(base)
+    (pkg / "data.yaml").write_text("a: 2\n")
+    os.utime(pkg / "data.yaml", ns=(10**9, 10**9))
     assert code_version("components/thing", root=tmp_path) != before
 
 
