@@ -61,7 +61,7 @@ def lineage_pairs(lineage) -> tuple:
     return upper & same, upper & ~same
 
 
-def joint_differences_deg(q) -> "np.ndarray":
+def joint_differences_deg(q):
     """Mean |q_a - q_b| over the joints, in degrees, of every pair of rows.  q (N, J) rad -> (N, N)."""
     import numpy as np
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import time
 import zlib
 from dataclasses import dataclass, field

@@ -19,7 +19,6 @@ detached *diagnostics* in metres (largest contact distance, deepest sampled pene
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional
 
