@@ -4,6 +4,8 @@ import json
 import os
 import shutil
 
+import pytest
+
 from tasks.artifacts import (atomic_write_json, atomic_write_text, code_version, read_manifest, recorded_folder,
                              sha256_file, unit_key, valid_manifest, verify, write_manifest)
 from tasks.specialist_index import rebase_entry
@@ -150,3 +152,40 @@ def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path)
     with file_lock(path, on_wait=calls.append):  # free: no wait
         pass
     assert calls == []
+
+
+def test_lock_holder_names_the_holder_without_taking_the_lock(tmp_path, monkeypatch):
+    """``status`` asks who holds each unit's lock; on Linux it reads /proc/locks, so a unit starting at that
+    instant never finds the lock taken by ``status`` (and logs no spurious waiting line)."""
+    import fcntl
+    import subprocess
+    import sys
+    import time
+
+    import tasks.artifacts
+    from tasks.artifacts import lock_holder
+
+    if not tasks.artifacts.PROC_LOCKS.exists():
+        pytest.skip("no /proc/locks: lock_holder tries the lock instead")
+    path = tmp_path / "unit.lock"
+    ready = tmp_path / "ready"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import pathlib, time\n"
+        "from tasks.artifacts import file_lock\n"
+        f"with file_lock(pathlib.Path({str(path)!r})):\n"
+        f"    pathlib.Path({str(ready)!r}).touch()\n"
+        "    time.sleep(30)\n")])
+    try:
+        while not ready.exists():
+            assert holder.poll() is None
+            time.sleep(0.05)
+        real_flock = fcntl.flock
+        monkeypatch.setattr(fcntl, "flock", lambda *a: pytest.fail("lock_holder took the lock"))
+        assert lock_holder(path).startswith(f"pid {holder.pid} (")
+        monkeypatch.setattr(fcntl, "flock", real_flock)
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    monkeypatch.setattr(fcntl, "flock", lambda *a: pytest.fail("lock_holder took the lock"))
+    assert lock_holder(path) is None  # its holder has ended: nothing listed
+    assert lock_holder(tmp_path / "nothing.lock") is None
