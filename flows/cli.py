@@ -178,6 +178,10 @@ def build_parser() -> argparse.ArgumentParser:
     ge.add_argument("--placement", type=Path, default=None, metavar="FILE",
                     help="scene JSON ({'objects': [{'name', 'position', 'quat_xyzw'}]}) instead of a sampled scene")
     ge.add_argument("--seed", type=int, default=0, help="seed of the scene sampling and of the diffusion noise")
+    ge.add_argument("--lift", action="store_true",
+                    help="then lift the grasps the paper's protocol filter keeps in PyBullet with the matching "
+                         "specialists (and w/o RL, the scripted squeeze): lift.json, per-pose outcomes and GIFs "
+                         "beside the grasps; two objects; needs the specialists stage")
     _config_args(ge)
 
     ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split; execution: lift success)",
@@ -496,9 +500,23 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
     cfg = _load(args)
     with _using(cfg):
-        report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed)
+        report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed, lift=args.lift,
+                          say=lambda line: print(line, file=sys.stderr, flush=True))
     print(f"{report.n} grasp(s) in {report.folder}  (sampling + IK {report.seconds['sample_and_ik_s']} s, refinement "
-          f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm)")
+          f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm; "
+          f"{report.kept} kept by the protocol filter)")
+    lifted = report.lift
+    if lifted is not None:
+        if not lifted.kept:
+            print(f"lift: none of the {report.n} grasps passed the protocol filter (generator.eval_filter), so none "
+                  "was lifted — ask for more with --n, or try another --seed")
+        else:
+            def pct(rate):
+                return "–" if rate is None else f"{100 * rate:.1f} %"
+
+            print(f"lift: {lifted.poses} pose(s) x {lifted.trials} trial(s) with {', '.join(lifted.specialists) or '-'}: "
+                  f"specialist {pct(lifted.succ)}, w/o RL {pct(lifted.without_rl)}, squeeze {pct(lifted.squeeze)}; "
+                  f"{lifted.path} ({len(lifted.gifs)} GIF(s))")
     return 0
 
 

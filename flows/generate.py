@@ -11,6 +11,12 @@ keypoints into (p, R, q), the refinement removes penetration, and the result goe
 contact ratio, and ``kept``: whether the paper's protocol filter keeps the grasp, ``generator.eval_filter``),
 ``scene.json`` and a render grid ``grasps.png``.  Any library object or user mesh works, seen in
 training or not; without a trained generator the error names the command that trains it.
+
+With ``--lift`` (two objects) the grasps the protocol filter keeps are then lifted in PyBullet as ``evaluate
+execution`` lifts the Gen rows' (:func:`lift_generated`): the matching specialist (by the bin of the pair and its
+centre line; a pair no specialist was trained on falls back to the nearest sector, then to any pair), seeded
+perturbed trials after the planned reach, and ``w/o RL`` and the scripted squeeze on the same trials.  Results:
+``lift.json`` (success rates, specialists used, GIFs) and ``lift/outcomes.json`` (per pose) in the same folder.
 """
 
 from __future__ import annotations
@@ -29,16 +35,35 @@ from tasks.artifacts import atomic_write_json
 
 
 @dataclass
+class LiftReport:
+    """``generate --lift``: the specialists (and the scripted rows) lifting the kept grasps."""
+
+    path: Path
+    kept: int
+    poses: int
+    trials: int
+    succ: float | None
+    without_rl: float | None
+    squeeze: float | None
+    specialists: tuple[str, ...]
+    gifs: tuple[Path, ...]
+
+
+@dataclass
 class GenerateReport:
     folder: Path
     n: int
     seconds: dict
     depth_before_mm: float
     depth_after_mm: float
+    kept: int = 0
+    lift: LiftReport | None = None
 
 
 def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg: float | None = None,
-             placement: Path | None = None, seed: int = 0) -> GenerateReport:
+             placement: Path | None = None, seed: int = 0, lift: bool = False, say=None) -> GenerateReport:
+    """Generate, IK-solve, refine, score and render ``n`` grasps (module docstring); with ``lift`` lift the kept
+    ones (:func:`lift_generated`), ``say`` receiving its progress lines."""
     import torch
 
     from components.generation import generate_grasps, load_generator, posed_clouds, refine_grasps
@@ -70,6 +95,7 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
         raise MultigraspError("no trained generator for this config — run `multigrasp run --until train-generator` "
                               "first (same --profile / --config / --set)")
     stage = cfg.generator
+    lift_outputs = _lift_outputs(cfg, scene) if lift else None  # before any work: what the lift needs is there
     if len(scene.objects) > stage.model.max_objects:
         raise MultigraspError(
             f"the generator of this config takes at most {stage.model.max_objects} objects per scene "
@@ -117,6 +143,60 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
                                                      "p": r["p"], "R": r["R"], "q": r["q"]}, cfg.synthesis.camera)
              for r in rows[:16]]
     render_grid(folder / "grasps.png", tiles)
+    lifted = lift_generated(cfg, lift_outputs, folder, scene, rows, seed, say) if lift else None
     return GenerateReport(folder=folder, n=n, seconds=seconds,
                           depth_before_mm=float(refined.depth_before.mean()) * 1000.0,
-                          depth_after_mm=float(refined.depth_after.mean()) * 1000.0)
+                          depth_after_mm=float(refined.depth_after.mean()) * 1000.0,
+                          kept=sum(r["kept"] for r in rows), lift=lifted)
+
+
+def _lift_outputs(cfg: PipelineConfig, scene) -> dict:
+    """The stage outputs ``--lift`` needs, checked before anything is generated (one-line errors)."""
+    from flows.evaluate_execution import EVALUATED_OBJECTS, _stage_outputs
+
+    if len(scene.objects) != EVALUATED_OBJECTS:
+        raise MultigraspError(f"--lift lifts {EVALUATED_OBJECTS}-object pre-grasps (the specialists are trained on "
+                              f"pairs) and the scene has {len(scene.objects)} ({'+'.join(scene.names)}) — give two "
+                              "--objects, or drop --lift")
+    return _stage_outputs(cfg)
+
+
+def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows: list[dict], seed: int,
+                   say=None) -> LiftReport:
+    """Lift the kept grasps of ``rows`` (one scene's, as ``generate`` wrote them) with the matching specialists,
+    and the same trials with ``w/o RL`` and the scripted squeeze (:func:`flows.evaluate_execution.evaluate_split`:
+    at most ``specialists.eval_poses`` of them, ``eval_trials`` seeded trials each, after the planned reach with
+    ``eval_after_reach``).  Writes ``folder/lift.json`` and ``folder/lift/outcomes.json``."""
+    from components.execution.lift_sim import GraspRecord
+    from flows.evaluate_execution import evaluate_split, evaluation_workers, lift_pool, write_outcomes
+
+    stage = cfg.specialists
+    combination = "+".join(scene.names)
+    records = [GraspRecord(scene=scene, p=np.asarray(r["p"], float), R=np.asarray(r["R"], float).reshape(3, 3),
+                           q=np.asarray(r["q"], float),
+                           meta={"scene_id": f"generated/{combination}-{seed}", "split": "generated", "row": i,
+                                 "combination": combination, "accepted": True})
+               for i, r in enumerate(rows) if r["kept"]]
+    scratch = folder / "lift"
+    if records:
+        with lift_pool(evaluation_workers(cfg)) as pool:
+            res = evaluate_split(cfg, outputs, "generated", scratch, scripted=True, records=records, say=say,
+                                 title=f"lift {combination}", pool=pool)
+        write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)
+    else:
+        from flows.evaluate_execution import SplitResult
+
+        res = SplitResult()
+    report = LiftReport(path=folder / "lift.json", kept=len(records), poses=res.poses, trials=stage.eval_trials,
+                        succ=res.rate(res.wins, res.total), without_rl=res.rate(res.scripted_wins, res.scripted_total),
+                        squeeze=res.rate(res.squeeze_wins, res.squeeze_total), specialists=res.used, gifs=res.gifs)
+    atomic_write_json(report.path, {
+        "kept": report.kept, "generated": len(rows), "n_poses": report.poses, "trials": report.trials,
+        "succ": report.succ, "w/o RL": report.without_rl, "squeeze": report.squeeze,
+        "specialists_used": list(res.used), "matched_by": res.matched_by, "unmatched_poses": res.unmatched,
+        "after_reach": stage.eval_after_reach, "gifs": [str(p) for p in res.gifs],
+        "specialists_manifest": str(Path(outputs["specialists"].folder) / "manifest.json"),
+        "note": "the generated grasps kept by the paper's protocol filter (generator.eval_filter), lifted as "
+                "`evaluate execution --source generated` lifts them" if records else
+                "no generated grasp passed the paper's protocol filter (generator.eval_filter): nothing was lifted"})
+    return report

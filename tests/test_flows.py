@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+from pathlib import Path
 
 import pytest
 
@@ -112,6 +113,36 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     states = {r.name: r for r in evaluation_status(other) if r.name in names}
     assert [states[name].state for name in names] == ["current", "current", "stale", "stale"]
     assert "other settings" in states["execution.json"].detail
+
+
+def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_specialists(smoke_runs, tmp_path, capsys):
+    """``generate --lift``: a pair (here with an out-of-domain object no specialist saw) from generation to lifted
+    outcomes in one command, as ``evaluate execution --source generated`` lifts the Gen rows."""
+    import json
+    import shutil
+
+    workdir = tmp_path / "runs"  # a copy: the shared smoke work dir's MLflow store is counted by another test
+    shutil.copytree(smoke_runs[0], workdir)
+    argv = ["generate", "--objects", "cube,duck", "--n", "3", "--seed", "1", "--lift", "--profile", "smoke",
+            "--workdir", str(workdir), "--max-workers", "1"]
+    for item in ("specialists.eval_poses=2", "specialists.eval_trials=1", "specialists.gifs_per_outcome=1",
+                 "generator.eval_filter.enabled=false"):
+        argv += ["--set", item]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    folder = workdir / "results" / "generated" / "cube+duck-1"
+    lift = json.loads((folder / "lift.json").read_text())
+    assert lift["generated"] == lift["kept"] == 3  # the filter open: every grasp kept, eval_poses of them lifted
+    assert lift["n_poses"] == 2 and lift["unmatched_poses"] == 0 and lift["trials"] == 1  # a pair specialist matches
+    assert lift["specialists_used"] and all(0.0 <= lift[k] <= 1.0 for k in ("succ", "w/o RL", "squeeze"))
+    assert len(json.loads((folder / "lift" / "outcomes.json").read_text())["poses"]) == 2
+    assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
+    assert "3 kept by the protocol filter" in out and "lift: 2 pose(s) x 1 trial(s)" in out
+    # three objects: one line before anything is generated
+    three = [*argv[:2], "cube,duck,sphere", *argv[3:]]
+    assert main(three) == 2
+    assert "--lift lifts 2-object pre-grasps" in capsys.readouterr().err
+    assert not (workdir / "results" / "generated" / "cube+duck+sphere-1").exists()
 
 
 def test_run_evaluate_needs_every_stage(tmp_path, capsys):
