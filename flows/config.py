@@ -287,10 +287,12 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
     """Digest of the named config sections (dotted paths), the part of a cache key from config.
 
     With ``objects`` among them, the contents of the files the config names there (:func:`object_file_digests`)
-    count too, so a user mesh edited in place keys new units instead of serving those of the old geometry."""
+    count too, so a user mesh edited in place keys new units instead of serving those of the old geometry.  A user
+    mesh that no split uses (:meth:`ObjectsConfig.used_only`) counts for nothing: a mesh added to ``objects.user`` only, to
+    ``generate`` grasps for it (and ``--lift`` them), keeps every trained stage."""
     from tasks.artifacts import digest
 
-    dump = cfg.model_dump(mode="json")
+    dump = _with_used_user_meshes(cfg.model_dump(mode="json"), cfg.objects)
     picked = {}
     for name in sections:
         node: Any = dump
@@ -331,22 +333,28 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
 
     if results_file not in EVALUATION_IGNORES:
         raise ValueError(f"unknown results file {results_file!r}")
-    dump = cfg.model_dump(mode="json")
+    dump = _with_used_user_meshes(cfg.model_dump(mode="json"), cfg.objects)
     for section in ("tracking", *EVALUATION_IGNORES[results_file]):
         dump.pop(section, None)
     dump["run"] = {k: v for k, v in dump["run"].items() if k not in _HOW_TO_RUN}
     return digest({"config": dump, "objects.files": object_file_digests(cfg.objects)})
 
 
+def _with_used_user_meshes(dump: dict[str, Any], objects: ObjectsConfig) -> dict[str, Any]:
+    """A config dump whose ``objects`` section keeps only the user meshes a split uses
+    (:meth:`ObjectsConfig.used_only`): unchanged when every user mesh is used, so such configs keep their keys."""
+    return {**dump, "objects": objects.used_only().model_dump(mode="json")}
+
+
 def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
-    """sha256 of each user mesh file (``objects.user``, resolved as the library resolves it: from the working
-    directory), of a custom ``objects.library_file`` and of the mesh files it names (from its folder; the installed
+    """sha256 of each user mesh file a split uses (``objects.user``, :meth:`ObjectsConfig.used_only`; resolved as the library
+    resolves it: from the working directory when not absolute), of a custom ``objects.library_file`` and of the mesh files it names (from its folder; the installed
     ``pybullet_data`` meshes of the default library are not hashed), by the path as written; ``missing`` for a file
     that is not there (the library's own check then names it)."""
     from components.objects.library import PYBULLET_DATA_PREFIX, read_library_file, resolve_source
     from components.objects.shapes import MeshShape
 
-    named = {str(user.mesh): Path(user.mesh).expanduser() for user in objects.user}
+    named = {str(user.mesh): Path(user.mesh).expanduser() for user in objects.used_only().user}
     if objects.library_file is not None:
         library = Path(objects.library_file).expanduser()
         library = library if library.is_absolute() else Path.cwd() / library

@@ -144,8 +144,8 @@ def test_the_objects_digest_follows_the_contents_of_the_files_the_config_names(t
     library.write_text("version: 1\nobjects:\n  part:\n    role: train\n"
                        "    shape: {type: mesh, source: meshes/part.obj}\n")
     plain = load_config("smoke", sets=[], workdir=tmp_path)
-    cfg = load_config("smoke", sets=[f"objects.library_file={library}", f"objects.user=[{{name: mug, mesh: {mug}}}]"],
-                      workdir=tmp_path)
+    cfg = load_config("smoke", sets=[f"objects.library_file={library}", f"objects.user=[{{name: mug, mesh: {mug}}}]",
+                                     "objects.ood=[mug]"], workdir=tmp_path)
 
     def digests():
         return section_digest(cfg, "objects"), section_digest(cfg, "scenes"), section_digest(plain, "objects")
@@ -214,3 +214,33 @@ def test_a_mesh_path_found_only_from_the_working_directory_still_loads_with_a_wa
     assert cfg.objects.user[1].mesh == (tmp_path / "configs" / "cup.obj").resolve()
     warning, = [r.getMessage() for r in caplog.records if "working directory" in r.getMessage()]
     assert "mug.obj" in warning and "relative to the file or absolute" in warning
+
+
+def test_a_user_mesh_no_split_uses_keeps_every_stage_key(tmp_path):
+    """A mesh added to ``objects.user`` alone (to ``generate`` grasps for it with the trained pipeline) changes no
+    stage key and no evaluation key; listed in a split, it counts, contents included."""
+    import trimesh
+
+    from flows.config import evaluation_key
+
+    mug = tmp_path / "mug.obj"
+    trimesh.creation.box(extents=(0.03, 0.03, 0.03)).export(mug)
+    plain = load_config("smoke", workdir=tmp_path)
+    added = load_config("smoke", sets=[f"objects.user=[{{name: mug, mesh: {mug}}}]"], workdir=tmp_path)
+    used = load_config("smoke", sets=[f"objects.user=[{{name: mug, mesh: {mug}}}]", "objects.ood=[duck, mug]"],
+                       workdir=tmp_path)
+    for sections in (("objects",), ("hand", "objects", "synthesis.metrics")):
+        assert section_digest(added, *sections) == section_digest(plain, *sections)
+    assert evaluation_key(added, "execution.json") == evaluation_key(plain, "execution.json")
+    from tasks.generator import training_data_digest  # what a longer training continues from, per stage
+    from tasks.specialists import training_digest
+
+    for cfg in (plain, added):
+        assert cfg.objects.used_only().user == []
+    assert training_digest(added.specialists, added.lift, added.objects, added.hand) == \
+        training_digest(plain.specialists, plain.lift, plain.objects, plain.hand)
+    assert training_data_digest(added.generator, added.objects, added.hand) == \
+        training_data_digest(plain.generator, plain.objects, plain.hand)
+    assert used.objects.used_only() is used.objects  # every user mesh used: the same section, the same keys
+    assert section_digest(used, "objects") != section_digest(plain.model_copy(update={"objects": plain.objects.model_copy(
+        update={"ood": ["duck", "mug"]})}), "objects")  # the mesh itself counts once a split uses it

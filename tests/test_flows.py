@@ -116,21 +116,26 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
 
 
 def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_specialists(smoke_runs, tmp_path, capsys):
-    """``generate --lift``: a pair (here with an out-of-domain object no specialist saw) from generation to lifted
-    outcomes in one command, as ``evaluate execution --source generated`` lifts the Gen rows."""
+    """``generate --lift``: a user's own mesh, added to the config of a trained pipeline (``objects.user`` only: no
+    stage key changes), paired with a cube from generation to lifted outcomes in one command, as ``evaluate execution
+    --source generated`` lifts the Gen rows."""
     import json
     import shutil
 
+    import trimesh
+
     workdir = tmp_path / "runs"  # a copy: the shared smoke work dir's MLflow store is counted by another test
     shutil.copytree(smoke_runs[0], workdir)
-    argv = ["generate", "--objects", "cube,duck", "--n", "3", "--seed", "1", "--lift", "--profile", "smoke",
+    mesh = tmp_path / "mug.obj"
+    trimesh.creation.cylinder(radius=0.02, height=0.05).export(mesh)
+    argv = ["generate", "--objects", "cube,mug", "--n", "3", "--seed", "1", "--lift", "--profile", "smoke",
             "--workdir", str(workdir), "--max-workers", "1"]
-    for item in ("specialists.eval_poses=2", "specialists.eval_trials=1", "specialists.gifs_per_outcome=1",
-                 "generator.eval_filter.enabled=false"):
+    for item in (f"objects.user=[{{name: mug, mesh: {mesh}}}]", "specialists.eval_poses=2",
+                 "specialists.eval_trials=1", "specialists.gifs_per_outcome=1", "generator.eval_filter.enabled=false"):
         argv += ["--set", item]
     assert main(argv) == 0
     out = capsys.readouterr().out
-    folder = workdir / "results" / "generated" / "cube+duck-1"
+    folder = workdir / "results" / "generated" / "cube+mug-1"
     lift = json.loads((folder / "lift.json").read_text())
     assert lift["generated"] == lift["kept"] == 3  # the filter open: every grasp kept, eval_poses of them lifted
     assert lift["n_poses"] == 2 and lift["unmatched_poses"] == 0 and lift["trials"] == 1  # a pair specialist matches
@@ -139,10 +144,10 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
     assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
     assert "3 kept by the protocol filter" in out and "lift: 2 pose(s) x 1 trial(s)" in out
     # three objects: one line before anything is generated
-    three = [*argv[:2], "cube,duck,sphere", *argv[3:]]
+    three = [*argv[:2], "cube,mug,sphere", *argv[3:]]
     assert main(three) == 2
     assert "--lift lifts 2-object pre-grasps" in capsys.readouterr().err
-    assert not (workdir / "results" / "generated" / "cube+duck+sphere-1").exists()
+    assert not (workdir / "results" / "generated" / "cube+mug+sphere-1").exists()
 
 
 def test_run_evaluate_needs_every_stage(tmp_path, capsys):

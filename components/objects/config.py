@@ -84,6 +84,20 @@ class ObjectsConfig(Section):
     vhacd_resolution: int = Field(100_000, ge=10_000, description="Voxel resolution of pybullet.vhacd for non-convex meshes without a shipped decomposition.")
     vhacd_max_vertices_per_hull: int = Field(64, ge=8, le=1024, description="Vertex limit of each convex piece of the decomposition.")
 
+    def used_names(self) -> set[str]:
+        """The objects the pipeline's stages use: ``train``, ``ood``, ``many_object`` and the held-out pairs' (every
+        scene, synthesis, point cloud and specialist is of these).  A user mesh outside them serves ``generate``."""
+        return {*self.train, *self.ood, self.many_object} | {n for pair in self.heldout_pairs or [] for n in pair}
+
+    def used_only(self) -> "ObjectsConfig":
+        """This section without the user meshes no split uses (:meth:`used_names`): what a stage's cache key reads,
+        so a mesh added only to ``objects.user`` (for ``generate``) keeps every trained stage.  The same object
+        when every user mesh is used, so such configs keep their keys."""
+        used = self.used_names()
+        if all(u.name in used for u in self.user):
+            return self
+        return self.model_copy(update={"user": [u for u in self.user if u.name in used]})
+
     @field_validator("many_counts")
     @classmethod
     def _counts_at_least_two(cls, counts: list[int]) -> list[int]:
