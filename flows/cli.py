@@ -517,6 +517,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             print(f"lift: {lifted.poses} pose(s) x {lifted.trials} trial(s) with {', '.join(lifted.specialists) or '-'}: "
                   f"specialist {pct(lifted.succ)}, w/o RL {pct(lifted.without_rl)}, squeeze {pct(lifted.squeeze)}; "
                   f"{lifted.path} ({len(lifted.gifs)} GIF(s))")
+    print(f"MLflow run {report.run_id} (generate:{report.folder.name.rsplit('-', 1)[0]})")
     return 0
 
 

@@ -58,6 +58,8 @@ class GenerateReport:
     depth_after_mm: float
     kept: int = 0
     lift: LiftReport | None = None
+    run_id: str | None = None
+    """The MLflow run holding the grasps, their render and the lift's results and GIFs."""
 
 
 def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg: float | None = None,
@@ -144,10 +146,37 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
              for r in rows[:16]]
     render_grid(folder / "grasps.png", tiles)
     lifted = lift_generated(cfg, lift_outputs, folder, scene, rows, seed, say) if lift else None
-    return GenerateReport(folder=folder, n=n, seconds=seconds,
-                          depth_before_mm=float(refined.depth_before.mean()) * 1000.0,
-                          depth_after_mm=float(refined.depth_after.mean()) * 1000.0,
-                          kept=sum(r["kept"] for r in rows), lift=lifted)
+    report = GenerateReport(folder=folder, n=n, seconds=seconds,
+                            depth_before_mm=float(refined.depth_before.mean()) * 1000.0,
+                            depth_after_mm=float(refined.depth_after.mean()) * 1000.0,
+                            kept=sum(r["kept"] for r in rows), lift=lifted)
+    report.run_id = _log_generate(cfg, report, scene, seed, manifest)
+    return report
+
+
+def _log_generate(cfg: PipelineConfig, report: GenerateReport, scene, seed: int, generator) -> str:
+    """An MLflow run ``generate:<objects>`` with the grasps, their render and, with ``--lift``, the lift's rates
+    and GIFs, as ``evaluate`` logs its tables."""
+    from flows.runtime import make_tracker
+
+    tracker = make_tracker(cfg)
+    run_id = tracker.start_run(f"generate:{'+'.join(scene.names)}",
+                               tags={"command": "generate", "objects": "+".join(scene.names), "seed": str(seed),
+                                     "profile": cfg.profile, "generator_run": generator.producer_run_id or ""})
+    metrics = {"generated": report.n, "kept": report.kept, "depth_before_mm": report.depth_before_mm,
+               "depth_after_mm": report.depth_after_mm, **report.seconds}
+    if report.lift is not None:
+        metrics.update({f"lift/{k}": v for k, v in (("succ", report.lift.succ), ("w/o RL", report.lift.without_rl),
+                                                    ("squeeze", report.lift.squeeze), ("poses", report.lift.poses))
+                        if v is not None})
+    tracker.log_metrics(run_id, metrics)
+    for name in ("grasps.json", "scene.json", "grasps.png", "lift.json"):
+        if (report.folder / name).is_file():
+            tracker.log_artifact(run_id, report.folder / name, "generated")
+    for path in report.lift.gifs if report.lift is not None else ():
+        tracker.log_artifact(run_id, path, "rollouts")
+    tracker.end_run(run_id)
+    return run_id
 
 
 def _lift_outputs(cfg: PipelineConfig, scene) -> dict:

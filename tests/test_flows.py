@@ -143,6 +143,15 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
     assert len(json.loads((folder / "lift" / "outcomes.json").read_text())["poses"]) == 2
     assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
     assert "3 kept by the protocol filter" in out and "lift: 2 pose(s) x 1 trial(s)" in out
+    from mlflow.tracking import MlflowClient  # the grasps, their render, the lift and its GIFs: one MLflow run
+
+    client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
+    run, = [r for r in client.search_runs(client.get_experiment_by_name("multigrasp").experiment_id)
+            if r.info.run_name == "generate:cube+mug"]
+    assert run.data.metrics["kept"] == 3 and run.data.metrics["lift/poses"] == 2
+    assert {a.path for a in client.list_artifacts(run.info.run_id, "generated")} >= {
+        "generated/grasps.png", "generated/grasps.json", "generated/lift.json"}
+    assert client.list_artifacts(run.info.run_id, "rollouts")
     # three objects: one line before anything is generated
     three = [*argv[:2], "cube,mug,sphere", *argv[3:]]
     assert main(three) == 2
