@@ -504,7 +504,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
                           say=lambda line: print(line, file=sys.stderr, flush=True))
     print(f"{report.n} grasp(s) in {report.folder}  (sampling + IK {report.seconds['sample_and_ik_s']} s, refinement "
           f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm; "
-          f"{report.kept} kept by the protocol filter)")
+          + (f"{report.kept} kept by the protocol filter)" if cfg.generator.eval_filter.enabled else
+             "the protocol filter off: every grasp kept)"))
     lifted = report.lift
     if lifted is not None:
         if not lifted.kept:

@@ -142,7 +142,7 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
     assert lift["specialists_used"] and all(0.0 <= lift[k] <= 1.0 for k in ("succ", "w/o RL", "squeeze"))
     assert len(json.loads((folder / "lift" / "outcomes.json").read_text())["poses"]) == 2
     assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
-    assert "3 kept by the protocol filter" in out and "lift: 2 pose(s) x 1 trial(s)" in out
+    assert "the protocol filter off: every grasp kept" in out and "lift: 2 pose(s) x 1 trial(s)" in out
     from mlflow.tracking import MlflowClient  # the grasps, their render, the lift and its GIFs: one MLflow run
 
     client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
