@@ -341,24 +341,26 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
 
 
 def _with_used_user_meshes(dump: dict[str, Any], objects: ObjectsConfig) -> dict[str, Any]:
-    """A config dump whose ``objects`` section keeps only the user meshes a split uses
-    (:meth:`ObjectsConfig.used_only`): unchanged when every user mesh is used, so such configs keep their keys."""
-    return {**dump, "objects": objects.used_only().model_dump(mode="json")}
+    """A config dump whose ``objects`` section is :meth:`ObjectsConfig.key_dump`: only the user meshes a split uses,
+    files named by their contents (:func:`object_file_digests`), not by where they lie, so a config and its meshes
+    moved to another folder or machine (a cluster's mount, a laptop's copy of the work dir) keep their keys."""
+    return {**dump, "objects": objects.key_dump()}
 
 
 def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
-    """sha256 of each user mesh file a split uses (``objects.user``, :meth:`ObjectsConfig.used_only`; resolved as the library
-    resolves it: from the working directory when not absolute), of a custom ``objects.library_file`` and of the mesh files it names (from its folder; the installed
-    ``pybullet_data`` meshes of the default library are not hashed), by the path as written; ``missing`` for a file
-    that is not there (the library's own check then names it)."""
+    """sha256 of each user mesh file a split uses (``objects.user``, :meth:`ObjectsConfig.used_only`; from the working
+    directory when not absolute), of a custom ``objects.library_file`` and of the mesh files it names (from its
+    folder; the installed ``pybullet_data`` meshes of the default library are not hashed), each under a name that
+    does not depend on where it lies: ``user:<object name>``, ``library_file``, ``library:<source as written in
+    the library>``; ``missing`` for a file that is not there (the library's own check then names it)."""
     from components.objects.library import PYBULLET_DATA_PREFIX, read_library_file, resolve_source
     from components.objects.shapes import MeshShape
 
-    named = {str(user.mesh): Path(user.mesh).expanduser() for user in objects.used_only().user}
+    named = {f"user:{user.name}": Path(user.mesh).expanduser() for user in objects.used_only().user}
     if objects.library_file is not None:
         library = Path(objects.library_file).expanduser()
         library = library if library.is_absolute() else Path.cwd() / library
-        named[str(objects.library_file)] = library
+        named["library_file"] = library
         try:
             specs = read_library_file(library).objects.values() if library.is_file() else []
         except MultigraspError:  # the library's own check names the problem when the stage builds it
@@ -367,7 +369,7 @@ def object_file_digests(objects: ObjectsConfig) -> dict[str, str]:
             if isinstance(spec.shape, MeshShape):
                 for source in (spec.shape.source, spec.shape.collision):
                     if source and not source.startswith(PYBULLET_DATA_PREFIX):
-                        named[source] = resolve_source(source, library.parent)
+                        named[f"library:{source}"] = resolve_source(source, library.parent)
     out = {}
     for written, path in named.items():
         path = path if path.is_absolute() else Path.cwd() / path

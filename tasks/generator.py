@@ -74,7 +74,7 @@ def training_data_digest(stage: GeneratorStageConfig, objects: ObjectsConfig, ha
     (clouds).  Stored in the manifest's meta as ``data``."""
     return digest({"splits": list(stage.splits), "records_source": stage.records_source,
                    "lowest_energy_per_scene": stage.lowest_energy_per_scene,
-                   "hand": hand_cfg.model_dump(mode="json"), "objects": objects.used_only().model_dump(mode="json")})
+                   "hand": hand_cfg.model_dump(mode="json"), "objects": objects.key_dump()})
 
 
 def longest_finished_training(folder: Path, synthesis: Manifest, data: str, code: str, cfg: GeneratorConfig

@@ -226,11 +226,11 @@ def plot_learning_curve(path: Path, history: list[dict], title: str, validations
 def training_digest(stage: SpecialistsStageConfig, lift: LiftEnvConfig, objects: ObjectsConfig, hand_cfg) -> str:
     """Digest of everything in the config that shapes a bin's training except the extendable PPO fields
     (:data:`components.execution.ppo.EXTENDABLE_FIELDS`); stored in the bin manifest's meta as ``training``.  User
-    meshes no split uses do not count (:meth:`ObjectsConfig.used_only`)."""
+    meshes no split uses, and where the files lie, do not count (:meth:`ObjectsConfig.key_dump`)."""
     ppo = {k: v for k, v in stage.ppo.model_dump(mode="json").items() if k not in EXTENDABLE_FIELDS}
     fields = {name: getattr(stage, name) for name in TRAINING_FIELDS}
     return digest({"ppo": ppo, "fields": fields, "lift": lift.model_dump(mode="json"),
-                   "objects": objects.used_only().model_dump(mode="json"), "hand": hand_cfg.model_dump(mode="json")})
+                   "objects": objects.key_dump(), "hand": hand_cfg.model_dump(mode="json")})
 
 
 def longest_finished_bin(spec: UnitSpec, training: str, iterations: int) -> tuple[Manifest, int] | None:

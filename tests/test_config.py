@@ -244,3 +244,25 @@ def test_a_user_mesh_no_split_uses_keeps_every_stage_key(tmp_path):
     assert used.objects.used_only() is used.objects  # every user mesh used: the same section, the same keys
     assert section_digest(used, "objects") != section_digest(plain.model_copy(update={"objects": plain.objects.model_copy(
         update={"ood": ["duck", "mug"]})}), "objects")  # the mesh itself counts once a split uses it
+
+
+def test_the_objects_digest_follows_contents_not_where_the_files_lie(tmp_path):
+    """The same config and meshes in another folder (another machine's mount of a work dir, a moved project) keep
+    their keys; other contents do not."""
+    import shutil
+
+    import trimesh
+
+    first, second = tmp_path / "here", tmp_path / "there"
+    (first / "meshes").mkdir(parents=True)
+    trimesh.creation.box(extents=(0.03, 0.03, 0.04)).export(first / "meshes" / "mug.obj")
+    (first / "library.yaml").write_text("version: 1\nobjects:\n  part:\n    role: train\n"
+                                        "    shape: {type: mesh, source: meshes/mug.obj}\n")
+    (first / "my.yaml").write_text("objects:\n  library_file: library.yaml\n  train: [part]\n  ood: [mug]\n"
+                                   "  many_object: part\n  user:\n    - {name: mug, mesh: meshes/mug.obj}\n")
+    shutil.copytree(first, second)
+    keys = [section_digest(load_config("smoke", config_file=folder / "my.yaml", workdir=tmp_path), "objects")
+            for folder in (first, second)]
+    assert keys[0] == keys[1]
+    trimesh.creation.box(extents=(0.03, 0.03, 0.05)).export(second / "meshes" / "mug.obj")
+    assert section_digest(load_config("smoke", config_file=second / "my.yaml", workdir=tmp_path), "objects") != keys[0]

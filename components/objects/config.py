@@ -15,6 +15,9 @@ DEFAULT_TRAIN_OBJECTS = ["cube", "cylinder", "sphere", "capsule", "ellipsoid", "
 DEFAULT_OOD_OBJECTS = ["duck", "bunny", "torus"]
 
 
+#: What :meth:`ObjectsConfig.key_dump` holds in place of a file's location (keys count its contents instead).
+FILE_BY_CONTENTS = "<contents: objects.files>"
+
 #: UserMesh.max_faces by default
 DEFAULT_USER_MESH_MAX_FACES = 10_000
 
@@ -97,6 +100,17 @@ class ObjectsConfig(Section):
         if all(u.name in used for u in self.user):
             return self
         return self.model_copy(update={"user": [u for u in self.user if u.name in used]})
+
+    def key_dump(self) -> dict:
+        """This section as cache keys read it: :meth:`used_only`, each file (user mesh, custom library) named by
+        :data:`FILE_BY_CONTENTS` instead of its path, so keys follow what the files hold (the flows hash their
+        contents beside it) and not where they lie: a config and its meshes moved to another folder or machine keep
+        their keys.  A config without such files dumps as ``model_dump(mode="json")``."""
+        section = self.used_only().model_dump(mode="json")
+        section["user"] = [{**u, "mesh": FILE_BY_CONTENTS} for u in section["user"]]
+        if section.get("library_file") is not None:
+            section["library_file"] = FILE_BY_CONTENTS
+        return section
 
     @field_validator("many_counts")
     @classmethod
