@@ -173,3 +173,31 @@ def test_run_evaluate_keeps_its_evaluations_when_another_results_file_is_unreada
     report, computed = flows.evaluations.run_evaluations(load_config("smoke", workdir=tmp_path), False, said.append)
     assert report is None and computed == 0
     assert "report not written" in said[-1] and "evaluate execution --ablations" in said[-1]
+
+
+def test_run_evaluate_plans_the_ablations_only_when_asked_and_redoes_a_partial_ablation_file(tmp_path, monkeypatch):
+    """``run --evaluate --ablations`` evaluates again an ``ablation_execution.json`` written without the ablation
+    specialists (what ``evaluate execution`` alone writes), and ``run --evaluate`` does not ask for ablation files."""
+    import flows.report
+    from flows.config import load_config
+    from flows.evaluations import pending_evaluations
+    from flows.report import EvaluationStatus
+
+    names = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json",
+             "ablation_generator.json", "ablation_execution.json")
+    states = dict.fromkeys(names, ("current", True))
+
+    def fake_status(cfg, finals=None):
+        return [EvaluationStatus(name, state, "", ablations=full) for name, (state, full) in states.items()]
+
+    monkeypatch.setattr(flows.report, "evaluation_status", fake_status)
+    cfg = load_config("smoke", workdir=tmp_path)
+    assert pending_evaluations(cfg, ablations=True) == [] and pending_evaluations(cfg, ablations=False) == []
+    states["ablation_execution.json"] = ("current", False)  # Ours, w/o RL and the squeeze only
+    assert pending_evaluations(cfg, ablations=False) == []
+    (evaluation, why), = pending_evaluations(cfg, ablations=True)
+    assert evaluation.label == "evaluate execution --ablations" and "without the ablation specialists" in why
+    states["ablation_generator.json"] = ("missing", False)
+    assert [e.label for e, _ in pending_evaluations(cfg, ablations=False)] == []
+    assert [e.label for e, _ in pending_evaluations(cfg, ablations=True)] == [
+        "evaluate pregrasp --source generated --ablations", "evaluate execution --ablations"]
