@@ -110,12 +110,14 @@ class SplitResult:
         return round(wins / total, 4) if total else None
 
 
-def _stage_outputs(cfg: PipelineConfig):
+def _stage_outputs(cfg: PipelineConfig, purpose: str = "evaluate execution"):
+    """The synthesize, pointnet and specialists outputs a lift needs; a one-line error naming ``purpose`` and the
+    command that makes them when one is missing."""
     from flows.pipeline import stage_output
 
     outputs = {name: stage_output(cfg, name) for name in ("synthesize", "pointnet", "specialists")}
     if any(v is None for v in outputs.values()):
-        raise MultigraspError("evaluate execution needs the synthesize and specialists stages for this config — run "
+        raise MultigraspError(f"{purpose} needs the synthesize and specialists stages for this config — run "
                               "`multigrasp run --until specialists` first (same --profile / --config / --set)")
     return outputs
 

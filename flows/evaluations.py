@@ -49,14 +49,15 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
     ]
 
 
-def pending_evaluations(cfg: PipelineConfig, ablations: bool,
-                        finals: dict[str, str | None] | None = None) -> list[tuple[Evaluation, str]]:
-    """The planned evaluations whose results are not current for ``cfg``, each with why (missing, stale, …)."""
+def pending_evaluations(cfg: PipelineConfig, ablations: bool, finals: dict[str, str | None] | None = None,
+                        planned: list[Evaluation] | None = None) -> list[tuple[Evaluation, str]]:
+    """The ``planned`` evaluations (default :func:`planned_evaluations`) whose results are not current for ``cfg``,
+    each with why (missing, stale, …)."""
     from flows.report import evaluation_status
 
     states = {row.name: row for row in evaluation_status(cfg, finals)}
     pending = []
-    for evaluation in planned_evaluations(ablations):
+    for evaluation in planned if planned is not None else planned_evaluations(ablations):
         reasons = [f"{name} {states[name].state}" for name in evaluation.files if states[name].state != "current"]
         if evaluation.needs_ablations and not reasons and not states["ablation_execution.json"].ablations:
             reasons.append("ablation_execution.json without the ablation specialists")
@@ -75,7 +76,7 @@ def run_evaluations(cfg: PipelineConfig, ablations: bool, say: Callable[[str], N
     from flows.report import write_report
 
     planned = planned_evaluations(ablations)
-    pending = pending_evaluations(cfg, ablations, finals)
+    pending = pending_evaluations(cfg, ablations, finals, planned)
     todo = {evaluation.label for evaluation, _ in pending}
     for evaluation in planned:
         if evaluation.label not in todo:

@@ -187,7 +187,7 @@ def _lift_outputs(cfg: PipelineConfig, scene) -> dict:
         raise MultigraspError(f"--lift lifts {EVALUATED_OBJECTS}-object pre-grasps (the specialists are trained on "
                               f"pairs) and the scene has {len(scene.objects)} ({'+'.join(scene.names)}) — give two "
                               "--objects, or drop --lift")
-    return _stage_outputs(cfg)
+    return _stage_outputs(cfg, "generate --lift")
 
 
 def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows: list[dict], seed: int,

@@ -123,25 +123,33 @@ def test_code_version_ignores_comments_docstrings_and_field_descriptions_but_not
     assert code_version("components/thing", root=tmp_path) != before
 
 
-def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path):
+def _hold_lock_in_another_process(path, ready, seconds: float):
+    """A child process holding :func:`tasks.artifacts.file_lock` at ``path`` for ``seconds``, returned once it
+    holds it (it touches ``ready`` then)."""
     import subprocess
     import sys
     import time
 
-    from tasks.artifacts import file_lock
-
-    path = tmp_path / "locks" / "unit.lock"
-    ready = tmp_path / "ready"
     holder = subprocess.Popen([sys.executable, "-c", (
         "import pathlib, time\n"
         "from tasks.artifacts import file_lock\n"
         f"with file_lock(pathlib.Path({str(path)!r})):\n"
         f"    pathlib.Path({str(ready)!r}).touch()\n"
-        "    time.sleep(1.5)\n")])
+        f"    time.sleep({seconds})\n")])
+    while not ready.exists():
+        assert holder.poll() is None
+        time.sleep(0.05)
+    return holder
+
+
+def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path):
+    import time
+
+    from tasks.artifacts import file_lock
+
+    path = tmp_path / "locks" / "unit.lock"
+    holder = _hold_lock_in_another_process(path, tmp_path / "ready", 1.5)
     try:
-        while not ready.exists():
-            assert holder.poll() is None
-            time.sleep(0.05)
         waited, start = [], time.monotonic()
         with file_lock(path, on_wait=waited.append):
             assert time.monotonic() - start > 0.5  # it blocked until the holder's block ended
@@ -158,9 +166,6 @@ def test_lock_holder_names_the_holder_without_taking_the_lock(tmp_path, monkeypa
     """``status`` asks who holds each unit's lock; on Linux it reads /proc/locks, so a unit starting at that
     instant never finds the lock taken by ``status`` (and logs no spurious waiting line)."""
     import fcntl
-    import subprocess
-    import sys
-    import time
 
     import tasks.artifacts
     from tasks.artifacts import lock_holder
@@ -168,17 +173,8 @@ def test_lock_holder_names_the_holder_without_taking_the_lock(tmp_path, monkeypa
     if not tasks.artifacts.PROC_LOCKS.exists():
         pytest.skip("no /proc/locks: lock_holder tries the lock instead")
     path = tmp_path / "unit.lock"
-    ready = tmp_path / "ready"
-    holder = subprocess.Popen([sys.executable, "-c", (
-        "import pathlib, time\n"
-        "from tasks.artifacts import file_lock\n"
-        f"with file_lock(pathlib.Path({str(path)!r})):\n"
-        f"    pathlib.Path({str(ready)!r}).touch()\n"
-        "    time.sleep(30)\n")])
+    holder = _hold_lock_in_another_process(path, tmp_path / "ready", 30)
     try:
-        while not ready.exists():
-            assert holder.poll() is None
-            time.sleep(0.05)
         real_flock = fcntl.flock
         monkeypatch.setattr(fcntl, "flock", lambda *a: pytest.fail("lock_holder took the lock"))
         assert lock_holder(path).startswith(f"pid {holder.pid} (")

@@ -165,7 +165,7 @@ def test_run_evaluate_keeps_its_evaluations_when_another_results_file_is_unreada
     from flows.config import load_config
 
     monkeypatch.setattr(flows.evaluations, "planned_evaluations", lambda ablations: [])
-    monkeypatch.setattr(flows.evaluations, "pending_evaluations", lambda cfg, ablations, finals=None: [])
+    monkeypatch.setattr(flows.evaluations, "pending_evaluations", lambda cfg, ablations, finals=None, planned=None: [])
     results = tmp_path / "results"
     _write(results, "execution.json", [{"setting": "Syn-Pl", "succ": 0.3, "n_poses": 2, "trials": 1}])
     (results / "ablation_execution.json").write_text("{truncated")
