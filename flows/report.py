@@ -261,10 +261,10 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
         elif settings is not None and settings != evaluation_key(cfg, name):
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; evaluated under other settings than this "
                                                         f"config's — run `{command}` again"))
-        elif not checks or settings is None:
-            what = "no stage output" if not checks else "no config key (written before the fiftieth session)"
-            rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records {what} — run `{command}` "
-                                                          "again to be sure"))
+        elif settings is None:
+            rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records no config key (written "
+                                                          f"before the fiftieth session) — run `{command}` again to be "
+                                                          "sure"))
         else:
             partial = name == "ablation_execution.json" and not data.get("ablations")
             detail = f"profile {profile}" + (f"; Ours, w/o RL and the squeeze only — `{command}` for every row"
