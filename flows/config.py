@@ -308,6 +308,8 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
 #: ``run`` fields that say how or where an invocation runs, not what it computes (left out of :func:`evaluation_key`;
 #: evaluations in worker processes give the same outcomes as in one, tests/test_flows.py).
 _HOW_TO_RUN = ("workdir", "runner", "max_workers", "torch_threads", "ray_address")
+#: ``specialists`` fields that say how an evaluation's lifts are split into jobs, not what they compute.
+_HOW_TO_EVALUATE = ("eval_chunk_poses",)
 
 
 #: results file → the config sections its evaluation never reads (neither directly nor through the stage outputs it
@@ -337,6 +339,8 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
     for section in ("tracking", *EVALUATION_IGNORES[results_file]):
         dump.pop(section, None)
     dump["run"] = {k: v for k, v in dump["run"].items() if k not in _HOW_TO_RUN}
+    if "specialists" in dump:
+        dump["specialists"] = {k: v for k, v in dump["specialists"].items() if k not in _HOW_TO_EVALUATE}
     return digest({"config": dump, "objects.files": object_file_digests(cfg.objects)})
 
 

@@ -26,7 +26,6 @@ markdown table, are logged to their own MLflow run.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -143,18 +142,20 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True, reach_memo: dict | None = None,
                    say: Callable[[str], None] | None = None, title: str = "", records: list | None = None,
-                   pool=None) -> SplitResult:
+                   pool=None, cached: bool = True) -> SplitResult:
     """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
     ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`).  ``say``: receives a
     progress line (counts, elapsed, ETA) as each specialist's poses finish.  ``records``: the pre-grasps to lift
     instead of the synthesize stage's (generated ones).  ``pool``: worker processes (:func:`lift_pool`) that lift the
-    poses, each specialist's split into ``run.max_workers`` pieces; without it they are lifted here."""
+    jobs; without it they are lifted here.  Each specialist's poses are lifted in jobs of ``eval_chunk_poses``;
+    ``cached``: each job is a unit (:mod:`tasks.lift_jobs`), so the jobs that finished before (an evaluation killed
+    halfway, a rerun) are served from their units and only the others are reached and lifted."""
     from components.execution.clustering import bin_label
-    from components.execution.factory import LiftEnvFactory
-    from components.execution.records import save_records
+    from components.execution.records import record_to_dict
     from tasks.preflight import cache_dir
     from components.hand import HandModel
     from components.hand.model import URDF_FILE_NAME
+    from tasks.lift_jobs import LiftJob, LiftJobResult, finished_result, lift_unit_spec
     from tasks.specialist_index import read_specialist_index
     from tasks.specialists import select_records, spread_records, squeeze_lift
 
@@ -186,33 +187,38 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
 
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups),
-                         passes=3 if scripted else 1, every=stage.eval_progress_every)
-    workers = evaluation_workers(cfg) if pool is not None else 1
-    jobs: list[tuple[str, list[str], LiftJob]] = []  # (specialist, combinations, job), in specialist and pose order
+    setting = lift_setting(cfg, scripted, gifs) if cached else ""
+    jobs: list[tuple[list[str], LiftJob]] = []  # (combinations, job), in specialist and pose order
+    done: dict[int, LiftJobResult] = {}  # job index -> result served from its unit
     for label, group in sorted(groups.items()):
         entry, name = index[label], label.replace("/", "_")
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
         combinations = [record.meta.get("combination") or "+".join(record.scene.names) for record in group]
-        if stage.eval_after_reach:
-            group = reached_once(group, cfg, hand, library, urdf, reach_memo)
-            out.reached += len(group)
-        pieces = pose_chunks(len(group), workers)
-        for number, (a, b) in enumerate(pieces):
-            records_file = scratch / (f"{name}.json" if len(pieces) == 1 else f"{name}.part{number}.json")
-            factory = LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"),
-                                     objects_cfg=cfg.objects.model_dump(mode="json"),
-                                     objects_cache=str(cache_dir(cfg.run.workdir)), urdf=str(urdf),
-                                     records=str(save_records(records_file, group[a:b])),
-                                     lift_cfg=cfg.lift.model_dump(mode="json"),
-                                     encoder=str(outputs["pointnet"].path("encoder")))
-            jobs.append((label, combinations[a:b],
-                         LiftJob(label=label, factory=factory, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
-                                 joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
-                                 gif_folder=str(scratch / name) if gifs and number == 0 else None)))
-    results = run_lift_jobs([job for _, _, job in jobs], pool, progress)
+        for a, b in pose_chunks(len(group), stage.eval_chunk_poses):
+            spec = lift_unit_spec(workdir=cfg.run.workdir, label=label, first=a, setting=setting,
+                                  policy=Path(entry["policy"]), encoder_key=outputs["pointnet"].key,
+                                  records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b]) if cached else None
+            job = LiftJob(label=label, factory=None, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
+                          joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
+                          gif_folder=str(scratch / name) if gifs and a == 0 else None, spec=spec)
+            result = finished_result(spec) if spec is not None else None
+            if result is not None:
+                done[len(jobs)] = result
+            else:
+                chunk = group[a:b]
+                if stage.eval_after_reach:
+                    chunk = reached_once(chunk, cfg, hand, library, urdf, reach_memo)
+                job.factory = lift_env_factory(cfg, outputs, urdf, chunk, scratch / f"{name}.{a}-{b}.json")
+            if stage.eval_after_reach:
+                out.reached += b - a
+            jobs.append((combinations[a:b], job))
+    progress = _Progress(say, title or split, sum(map(len, groups.values())), stage.eval_trials, len(groups),
+                         passes=3 if scripted else 1, every=stage.eval_progress_every)
+    if done:
+        progress.served(sum(len(jobs[i][1].keys) for i in done), len(done))
+    results = run_lift_jobs([job for _, job in jobs], pool, progress, done)
     gif_paths: list[Path] = []
-    for (label, combinations, job), result in zip(jobs, results):
+    for (combinations, job), result in zip(jobs, results):
         out.wins += sum(result.policy)
         out.total += len(result.policy) * stage.eval_trials
         out.poses += len(result.policy)
@@ -223,11 +229,52 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
             out.squeeze_wins += sum(result.squeeze)
             out.squeeze_total += len(result.squeeze) * stage.eval_trials
         for i, key in enumerate(job.keys):
-            row = {"specialist": label, "combination": combinations[i], "pose_key": key, "policy": result.policy[i]}
+            row = {"specialist": job.label, "combination": combinations[i], "pose_key": key, "policy": result.policy[i]}
             if scripted:
                 row.update({"w/o RL": result.wo_rl[i], "squeeze": result.squeeze[i]})
             out.outcomes.append(row)
-    out.gifs = tuple(gif_paths)
+    out.gifs = tuple(_gifs_beside_results(gif_paths, jobs, results, scratch))
+    return out
+
+
+def lift_setting(cfg: PipelineConfig, scripted: bool, gifs: bool) -> str:
+    """The config part of a lift job's key (:mod:`tasks.lift_jobs`): the lift, hand and objects sections, the
+    evaluation fields of the specialists section, the reach setting when the poses are reached first, and which
+    controllers and GIFs the job makes."""
+    from tasks.lift_jobs import EVALUATION_FIELDS
+
+    stage = cfg.specialists
+    extra = {"fields": {name: getattr(stage, name) for name in EVALUATION_FIELDS}, "scripted": scripted,
+             "gifs": gifs and stage.gifs_per_outcome > 0,
+             "reach": cfg.reach.reaching.model_dump(mode="json") if stage.eval_after_reach else None}
+    return section_digest(cfg, "lift", "hand", "objects", extra=extra)
+
+
+def lift_env_factory(cfg: PipelineConfig, outputs: dict, urdf: Path, records: list, records_file: Path):
+    """The env factory of a job over ``records`` (saved to ``records_file``, which a worker process reads)."""
+    from components.execution.factory import LiftEnvFactory
+    from components.execution.records import save_records
+    from tasks.preflight import cache_dir
+
+    return LiftEnvFactory(hand_cfg=cfg.hand.model_dump(mode="json"), objects_cfg=cfg.objects.model_dump(mode="json"),
+                          objects_cache=str(cache_dir(cfg.run.workdir)), urdf=str(urdf),
+                          records=str(save_records(records_file, records)),
+                          lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(outputs["pointnet"].path("encoder")))
+
+
+def _gifs_beside_results(gifs: list[Path], jobs: list, results: list, scratch: Path) -> list[Path]:
+    """The jobs' GIFs (in their units) copied under ``scratch/<specialist>/``, where the evaluation's results are
+    browsed; the copies are what MLflow logs."""
+    import shutil
+
+    out = []
+    for gif in gifs:
+        label = next(job.label for (_, job), result in zip(jobs, results) if str(gif) in result.gifs)
+        target = scratch / label.replace("/", "_") / gif.name
+        if gif.parent != target.parent:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(gif, target)
+        out.append(target)
     return out
 
 
@@ -238,72 +285,13 @@ def evaluation_workers(cfg: PipelineConfig) -> int:
     return max(1, min(cfg.run.max_workers, os.cpu_count() or 1))
 
 
-def pose_chunks(n: int, workers: int) -> list[tuple[int, int]]:
-    """``[a, b)`` ranges that split one specialist's ``n`` poses into ``workers`` near-equal consecutive pieces (one
-    piece with one worker; never an empty one)."""
-    pieces = max(1, min(workers, n))
+def pose_chunks(n: int, size: int) -> list[tuple[int, int]]:
+    """``[a, b)`` ranges that split one specialist's ``n`` poses into consecutive jobs of at most ``size`` poses, as
+    near-equal as that allows (one empty range when ``n`` is 0).  They do not depend on the number of workers, so
+    neither do the jobs' keys."""
+    pieces = max(1, -(-n // max(1, size)))
     bounds = [round(i * n / pieces) for i in range(pieces + 1)]
     return [(bounds[i], bounds[i + 1]) for i in range(pieces)]
-
-
-@dataclass
-class LiftJob:
-    """One specialist lifting some of its poses (picklable: a worker process builds the env from ``factory``)."""
-
-    label: str
-    factory: Any
-    policy: str
-    keys: list[int]
-    stage: Any
-    joint_names: list[str] | None
-    scripted: bool
-    gif_folder: str | None
-
-
-@dataclass
-class LiftJobResult:
-    policy: list[int]
-    wo_rl: list[int] | None = None
-    squeeze: list[int] | None = None
-    gifs: list[str] = field(default_factory=list)
-
-
-def lift_job(job: LiftJob, progress: "_Progress | None" = None) -> LiftJobResult:
-    """Lift a job's poses with its specialist (``eval_trials`` seeded trials each) and, with ``scripted``, with the
-    paper's ``w/o RL`` (no grasp closure) and the scripted squeeze on the same trials; GIFs into ``gif_folder``."""
-    from components.execution.evaluation import ScriptedLift, evaluate_lift, rollout_gif, trial_seed
-    from components.execution.ppo import load_actor
-    from tasks.specialists import squeeze_lift
-
-    stage, keys, n = job.stage, job.keys, len(job.keys)
-
-    def hook(phase: str):
-        return progress.on_rollout(job.label, phase, n) if progress is not None else None
-
-    env = job.factory()
-    try:
-        actor = load_actor(Path(job.policy), env)
-        result = evaluate_lift(env, actor, trials=stage.eval_trials, seed=stage.eval_seed, seed_keys=keys,
-                               on_rollout=hook("policy"))
-        out = LiftJobResult(policy=list(result.successes_per_pose))
-        if job.gif_folder is not None:
-            out.gifs = [str(p) for p in _outcome_gifs(env, actor, result, stage, Path(job.gif_folder), rollout_gif,
-                                                        trial_seed)]
-        if job.scripted:  # w/o RL: the paper's straight lift from the pre-grasp itself, without the grasp closure
-            paper = without_closure(job.factory)
-            plain = env if paper is job.factory else paper()
-            try:
-                base = evaluate_lift(plain, ScriptedLift(stage.scripted_force_fraction), trials=stage.eval_trials,
-                                     seed=stage.eval_seed, seed_keys=keys, on_rollout=hook("w/o RL"))
-            finally:
-                if plain is not env:
-                    plain.close()
-            held = evaluate_lift(env, squeeze_lift(stage, job.joint_names), trials=stage.eval_trials,
-                                 seed=stage.eval_seed, seed_keys=keys, on_rollout=hook("squeeze"))
-            out.wo_rl, out.squeeze = list(base.successes_per_pose), list(held.successes_per_pose)
-        return out
-    finally:
-        env.close()
 
 
 def _worker_init() -> None:
@@ -329,8 +317,8 @@ def lift_pool(workers: int):
                                initializer=_worker_init)
     try:
         yield pool
-    except BaseException:  # Ctrl-C / SIGTERM or an error: nothing of an unfinished evaluation is kept, so stop the
-        # workers now instead of letting them lift every queued piece first
+    except BaseException:  # Ctrl-C / SIGTERM or an error: the finished jobs are in their units, so stop the workers
+        # now instead of letting them lift every queued job first
         for process in list((getattr(pool, "_processes", None) or {}).values()):
             process.terminate()
         pool.shutdown(wait=False, cancel_futures=True)
@@ -338,36 +326,47 @@ def lift_pool(workers: int):
     pool.shutdown(wait=True)
 
 
-def run_lift_jobs(jobs: list[LiftJob], pool, progress: "_Progress") -> list[LiftJobResult]:
-    """The jobs' results in job order: in this process without a ``pool`` (:func:`lift_pool`) or with one job (a
-    progress line every ``eval_progress_every`` poses of each pass), else in the pool's processes (a line per
-    finished job).  Every trial is seeded by its pose and an episode does not depend on the episodes before it, so
-    the outcomes are the same either way."""
-    results: list[LiftJobResult | None] = [None] * len(jobs)
+def run_lift_jobs(jobs: list, pool, progress: "_Progress", done: dict | None = None) -> list:
+    """The jobs' results (:class:`tasks.lift_jobs.LiftJobResult`) in job order: those in ``done`` (job index ->
+    result served from its unit) as they are, the others lifted (:func:`tasks.lift_jobs.run_lift_job`) in this
+    process without a ``pool`` (:func:`lift_pool`) or with one job to lift (a progress line every
+    ``eval_progress_every`` poses of each pass), else in the pool's processes (a line per finished job).  Every trial
+    is seeded by its pose and an episode does not depend on the episodes before it, so the outcomes are the same
+    either way."""
+    from tasks.lift_jobs import run_lift_job
+
+    done = dict(done or {})
+    results: list = [done.get(i) for i in range(len(jobs))]
+    todo = [i for i in range(len(jobs)) if i not in done]
     tally = SplitResult()
+    for index in done:
+        _count(tally, jobs[index], done[index])
 
-    def finished(index: int, result: LiftJobResult) -> None:
+    def finished(index: int, result) -> None:
         results[index] = result
-        job = jobs[index]
-        tally.wins += sum(result.policy)
-        tally.total += len(result.policy) * job.stage.eval_trials
-        if job.scripted:
-            tally.scripted_wins += sum(result.wo_rl)
-            tally.scripted_total += len(result.wo_rl) * job.stage.eval_trials
-            tally.squeeze_wins += sum(result.squeeze)
-            tally.squeeze_total += len(result.squeeze) * job.stage.eval_trials
-        progress.specialist_done(job.label, len(job.keys), tally, job.scripted)
+        _count(tally, jobs[index], result)
+        progress.specialist_done(jobs[index].label, len(jobs[index].keys), tally, jobs[index].scripted)
 
-    if pool is None or len(jobs) <= 1:
-        for index, job in enumerate(jobs):
-            finished(index, lift_job(job, progress))
-        return results  # type: ignore[return-value]
+    if pool is None or len(todo) <= 1:
+        for index in todo:
+            finished(index, run_lift_job(jobs[index], progress))
+        return results
     from concurrent.futures import as_completed
 
-    futures = {pool.submit(lift_job, job): index for index, job in enumerate(jobs)}
+    futures = {pool.submit(run_lift_job, jobs[index]): index for index in todo}
     for future in as_completed(futures):
         finished(futures[future], future.result())
-    return results  # type: ignore[return-value]
+    return results
+
+
+def _count(tally: SplitResult, job, result) -> None:
+    tally.wins += sum(result.policy)
+    tally.total += len(result.policy) * job.stage.eval_trials
+    if job.scripted:
+        tally.scripted_wins += sum(result.wo_rl)
+        tally.scripted_total += len(result.wo_rl) * job.stage.eval_trials
+        tally.squeeze_wins += sum(result.squeeze)
+        tally.squeeze_total += len(result.squeeze) * job.stage.eval_trials
 
 
 def write_outcomes(path: Path, res: SplitResult, trials: int) -> Path:
@@ -377,16 +376,6 @@ def write_outcomes(path: Path, res: SplitResult, trials: int) -> Path:
     A B`` compares them pose by pose (paired standard errors of 0.8-1.2 points on 100 poses x 5 trials in the
     forty-second session, against ~3 points for the difference of two separate rates)."""
     return atomic_write_json(path, {"trials": trials, "poses": res.outcomes})
-
-
-def without_closure(factory):
-    """The env factory of the paper's ``w/o RL``: the same env, starting at the pre-grasp itself (``closure_steps``
-    0; the factory itself when its env already does)."""
-    from components.execution import LiftEnvConfig
-
-    if LiftEnvConfig(**factory.lift_cfg).closure_steps == 0:  # a missing key is the config's default
-        return factory
-    return dataclasses.replace(factory, lift_cfg={**factory.lift_cfg, "closure_steps": 0})
 
 
 def pose_key(record, index: int) -> int:
@@ -407,13 +396,15 @@ class _Progress:
                  passes: int = 1, every: int = 0):
         self.say, self.title, self.poses, self.done = say or (lambda _: None), title, poses, 0
         self.trials, self.passes, self.every, self.pass_poses = trials, passes, every, 0  # pose-passes finished
+        self.skipped = 0  # poses served from finished lift jobs: done, but in no time (left out of the ETA's rate)
         self.start = time.monotonic()
         self.say(f"[bold cyan]evaluate execution[/] {title}: {poses} pose(s) x {trials} trial(s) with "
                  f"{specialists} specialist(s)")
 
     def _eta(self) -> str:
         elapsed, total = time.monotonic() - self.start, self.poses * self.passes
-        left = f", ETA {elapsed / self.pass_poses * (total - self.pass_poses):.0f}s" if 0 < self.pass_poses < total else ""
+        lifted = self.pass_poses - self.skipped * self.passes
+        left = f", ETA {elapsed / lifted * (total - self.pass_poses):.0f}s" if lifted > 0 and self.pass_poses < total else ""
         return f"elapsed {elapsed:.0f}s{left}"
 
     def on_rollout(self, label: str, phase: str, poses: int) -> Callable[[int, int, object], None]:
@@ -431,11 +422,20 @@ class _Progress:
                          f"{count[0]}/{poses} poses, {self._eta()}")
         return seen
 
+    def served(self, poses: int, jobs: int) -> None:
+        """``poses`` of ``jobs`` lift jobs finished before (their units): counted done, not lifted again."""
+        self.done += poses
+        self.skipped += poses
+        self.pass_poses = self.done * self.passes
+        self.say(f"[bold cyan]evaluate execution[/] {self.title}: {poses}/{self.poses} poses served from {jobs} "
+                 "finished lift job(s)")
+
     def specialist_done(self, label: str, poses: int, out: SplitResult, scripted: bool) -> None:
         self.done += poses
         self.pass_poses = self.done * self.passes
         elapsed = time.monotonic() - self.start
-        eta = f", ETA {elapsed / self.done * (self.poses - self.done):.0f}s" if self.done < self.poses else ""
+        lifted = self.done - self.skipped
+        eta = f", ETA {elapsed / lifted * (self.poses - self.done):.0f}s" if 0 < lifted and self.done < self.poses else ""
         extra = (f", w/o RL {out.scripted_wins}/{out.scripted_total}, squeeze {out.squeeze_wins}/{out.squeeze_total}"
                  if scripted else "")
         self.say(f"[bold cyan]evaluate execution[/] {self.title} {self.done}/{self.poses} poses (specialist {label}): "
@@ -531,28 +531,6 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     tracker.end_run(run_id)
     return ExecutionReport(rows=rows, ablation_rows=ablation, json_path=json_path, ablation_path=ablation_path,
                            markdown=markdown)
-
-
-def _outcome_gifs(env, actor, result, stage, folder: Path, rollout_gif, trial_seed) -> list[Path]:
-    """GIFs of up to ``stage.gifs_per_outcome`` successful and failed trials of one specialist's poses.  The
-    trials are seeded, so a replay has the evaluated outcome; poses whose trials all had an outcome whose
-    quota is full are skipped."""
-    left = {True: stage.gifs_per_outcome, False: stage.gifs_per_outcome}
-    out = []
-    for pose, wins in enumerate(result.successes_per_pose):
-        for trial in range(result.trials):
-            possible = {True} if wins == result.trials else {False} if wins == 0 else {True, False}
-            if not any(left[o] for o in possible):
-                break
-            path, success = rollout_gif(env, actor, pose, trial_seed(stage.eval_seed, result.seed_keys[pose], trial),
-                                        folder / f"pose{pose}_trial{trial}.gif")
-            if left[success]:
-                left[success] -= 1
-                final = path.with_name(f"{'success' if success else 'failure'}_{path.name}")
-                out.append(path.replace(final))
-            else:
-                path.unlink()
-    return out
 
 
 def _pct(value) -> str:

@@ -1,6 +1,7 @@
 """``multigrasp run --evaluate``: the pipeline's last step, every evaluation this config is missing, then the report.
 
-The ``evaluate`` commands always compute (a user asked for them).  After a whole ``run``, ``--evaluate`` runs only
+The ``evaluate`` commands always write their results anew (a user asked for them; the execution evaluations serve
+the lift jobs that finished before, :mod:`tasks.lift_jobs`).  After a whole ``run``, ``--evaluate`` runs only
 those whose results under ``<workdir>/results/`` are not current for this config (:func:`flows.report.
 evaluation_status`: made from this config's stage outputs now and under its settings), in the order of the paper's
 tables, and ends with ``multigrasp report``.  A rerun after a crash or a Ctrl-C redoes only the evaluations that had

@@ -210,7 +210,7 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
     if records:
         with lift_pool(evaluation_workers(cfg)) as pool:
             res = evaluate_split(cfg, outputs, "generated", scratch, scripted=True, records=records, say=say,
-                                 title=f"lift {combination}", pool=pool)
+                                 title=f"lift {combination}", pool=pool, cached=False)  # a one-off, in its own folder
         write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)
     else:
         from flows.evaluate_execution import SplitResult

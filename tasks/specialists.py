@@ -87,6 +87,11 @@ class SpecialistsStageConfig(Section):
         "planned path from an open hand, run in PyBullet with reach.reaching) and lift from the end-of-reach state, "
         "objects where the reach left them (paper §'Execution Policy': reaching, then lifting).  False: lift from the "
         "pre-grasp itself.")
+    eval_chunk_poses: int = Field(
+        10, ge=1,
+        description="multigrasp evaluate execution: poses per lift job, the unit an evaluation caches and a worker "
+        "lifts (tasks/lift_jobs.py).  An evaluation killed halfway relifts at most this many poses per job that was "
+        "running; the outcomes do not depend on it (each trial is seeded by its pose).")
     eval_progress_every: int = Field(
         10, ge=0,
         description="multigrasp evaluate execution: a progress line (poses done, elapsed, ETA) every this many "

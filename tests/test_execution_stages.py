@@ -206,12 +206,14 @@ def test_evaluate_execution_of_generated_pre_grasps_writes_the_gen_rows(runs, ca
     assert "| execution_generated.json | smoke |" in (workdir / "results" / "report.md").read_text()
 
 
-def test_pose_chunks_split_a_specialists_poses_evenly():
+def test_pose_chunks_split_a_specialists_poses_into_jobs_of_at_most_the_chunk_size():
     from flows.evaluate_execution import pose_chunks
 
-    assert pose_chunks(5, 2) == [(0, 2), (2, 5)] or pose_chunks(5, 2) == [(0, 3), (3, 5)]
-    assert pose_chunks(1, 4) == [(0, 1)] and pose_chunks(7, 1) == [(0, 7)] and pose_chunks(0, 2) == [(0, 0)]
-    assert [b - a for a, b in pose_chunks(100, 3)] == [33, 34, 33]
+    assert pose_chunks(5, 3) in ([(0, 2), (2, 5)], [(0, 3), (3, 5)])
+    assert pose_chunks(1, 4) == [(0, 1)] and pose_chunks(7, 7) == [(0, 7)] and pose_chunks(0, 2) == [(0, 0)]
+    assert [b - a for a, b in pose_chunks(100, 10)] == [10] * 10
+    assert [b - a for a, b in pose_chunks(21, 10)] == [7, 7, 7]  # three jobs, as equal as they can be
+    assert [b - a for a, b in pose_chunks(3, 1)] == [1, 1, 1]
 
 
 def test_evaluation_progress_says_a_line_every_k_poses_of_each_pass_with_an_eta():
@@ -307,7 +309,7 @@ def test_a_moved_work_dir_keeps_its_specialists_and_evaluates_them_from_where_it
 
 def test_the_wo_rl_row_lifts_from_the_pre_grasp_without_the_grasp_closure():
     from components.execution.factory import LiftEnvFactory
-    from flows.evaluate_execution import without_closure
+    from tasks.lift_jobs import without_closure
 
     factory = LiftEnvFactory(hand_cfg={}, objects_cfg={}, objects_cache="c", urdf="u", records="r",
                              lift_cfg={"closure_steps": 10, "max_steps": 25}, encoder="e")

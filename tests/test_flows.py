@@ -45,24 +45,60 @@ def test_second_smoke_run_serves_every_stage_from_cache(smoke_runs):
     assert after_second == first, "the second run recomputed units"
 
 
-def test_lifting_in_worker_processes_gives_the_same_outcomes(smoke_runs, tmp_path):
-    """--max-workers 2 splits each specialist's poses over two spawned processes; every trial is seeded by its pose
-    and an episode does not depend on the ones before it, so every pose's outcome is the one lifted in-process."""
+def _lift_job_keys(workdir: Path) -> list[str]:
+    """Keys of the lift jobs executed in ``workdir`` (not served from their units), in order."""
+    log = workdir / "executions.log"
+    return [line.split()[1] for line in log.read_text().splitlines() if line.startswith("evaluate-execution/")]
+
+
+def test_an_evaluation_killed_halfway_relifts_only_its_unfinished_jobs_and_workers_give_the_same_outcomes(
+        smoke_runs, tmp_path, monkeypatch):
+    """Each specialist's poses are lifted in cached jobs (tasks/lift_jobs.py): an evaluation interrupted after two
+    jobs, run again, serves those two and lifts the rest; a rerun lifts nothing.  --max-workers 2 lifts the jobs
+    in two spawned processes; every trial is seeded by its pose and an episode does not depend on the ones before
+    it, so every pose's outcome is the one lifted in-process."""
     import json
     import shutil
+
+    import tasks.lift_jobs
+    from flows.cli import EXIT_INTERRUPTED
 
     workdir = tmp_path / "runs"  # a copy: the shared smoke work dir's MLflow store is counted by another test
     shutil.copytree(smoke_runs[0], workdir)
     argv = ["evaluate", "execution", "--profile", "smoke", "--workdir", str(workdir)]
-    for item in ("specialists.eval_poses=4", "specialists.eval_trials=1", "specialists.gifs_per_outcome=0"):
+    for item in ("specialists.eval_poses=4", "specialists.eval_trials=1", "specialists.gifs_per_outcome=0",
+                 "specialists.eval_chunk_poses=1"):
         argv += ["--set", item]
-    outcomes = {}
-    for workers in ("1", "2"):
-        assert main([*argv, "--max-workers", workers]) == 0
-        outcomes[workers] = {setting: json.loads((workdir / "results" / "execution" / setting / "outcomes.json")
-                                                 .read_text())["poses"] for setting in ("Syn-Pl", "Syn-Com", "Syn-Geo")}
-    assert outcomes["1"] == outcomes["2"]
-    assert len(outcomes["1"]["Syn-Pl"]) == 4 and len({p["specialist"] for p in outcomes["1"]["Syn-Pl"]}) >= 1
+
+    def outcomes() -> dict:
+        return {setting: json.loads((workdir / "results" / "execution" / setting / "outcomes.json")
+                                    .read_text())["poses"] for setting in ("Syn-Pl", "Syn-Com", "Syn-Geo")}
+
+    real, lifted = tasks.lift_jobs.lift_job, []
+
+    def dies_on_the_third(job, progress=None):
+        if len(lifted) == 2:
+            raise KeyboardInterrupt  # as Ctrl-C in the middle of the third job
+        lifted.append(job.keys)
+        return real(job, progress)
+
+    monkeypatch.setattr(tasks.lift_jobs, "lift_job", dies_on_the_third)
+    assert main([*argv, "--max-workers", "1"]) == EXIT_INTERRUPTED
+    monkeypatch.setattr(tasks.lift_jobs, "lift_job", real)
+    first = _lift_job_keys(workdir)
+    assert len(first) == 3 and not (workdir / "results" / "execution.json").exists()
+    assert main([*argv, "--max-workers", "1"]) == 0
+    second = _lift_job_keys(workdir)[3:]
+    assert first[2] in second and not {first[0], first[1]} & set(second)  # the two finished jobs were served
+    resumed = outcomes()
+    assert len(resumed["Syn-Pl"]) == 4 and len({p["specialist"] for p in resumed["Syn-Pl"]}) >= 1
+    assert len(second) + 2 == sum(len(poses) for poses in resumed.values())  # one job per pose here
+    assert main([*argv, "--max-workers", "1"]) == 0 and len(_lift_job_keys(workdir)) == 3 + len(second)
+
+    shutil.rmtree(workdir / "stages" / "evaluate-execution")  # lift every job again, now in two processes
+    assert main([*argv, "--max-workers", "2"]) == 0
+    assert len(_lift_job_keys(workdir)) == 3 + len(second) + (len(second) + 2)
+    assert outcomes() == resumed
 
 
 def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smoke_runs, tmp_path, capsys):

@@ -131,3 +131,22 @@ def test_an_invocation_waits_for_a_running_prune(tmp_path):
     worker.join(timeout=10)
     assert events == ["waiting", "running"]
     assert not list((tmp_path / "locks" / "invocations").iterdir())  # its record goes with it
+
+
+def test_prune_deletes_the_lift_jobs_of_older_code_and_unfinished_ones_only(tmp_path):
+    """Lift jobs (tasks/lift_jobs.py) are not planned by a config: finished ones of this code stay, whatever
+    config made them; those of another code version, or without a manifest (interrupted), go."""
+    from flows.prune import PrunePlan, _plan_lift_jobs
+    from tasks.artifacts import atomic_write_json, code_version, write_manifest
+    from tasks.lift_jobs import LIFT_CODE, STAGE
+
+    stage_dir = tmp_path / "stages" / STAGE
+    for name, code in (("aaaa", code_version(*LIFT_CODE)), ("bbbb", "0ld"), ("cccc", None)):
+        folder = stage_dir / name
+        result = atomic_write_json(folder / "result.json", {"policy": [1], "wo_rl": None, "squeeze": None, "gifs": []})
+        if code is not None:
+            write_manifest(stage=STAGE, unit="lift-cube-0", key=name, folder=folder, files={"result": result}, code=code)
+    plan = PrunePlan(workdir=tmp_path, kept=["smoke"])
+    _plan_lift_jobs(stage_dir, plan)
+    assert {c.key: c.reason for c in plan.candidates} == {"bbbb": "older code", "cccc": "unfinished"}
+    assert plan.kept_units == {STAGE: 1}
