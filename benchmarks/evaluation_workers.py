@@ -6,7 +6,9 @@ medians of ``--repeats`` invocations each; checks that every setting's per-pose 
 
 The work dir must hold the config's synthesize, pointnet and specialists stages (``multigrasp run --until
 specialists`` with the same ``--profile`` / ``--set``).  ``lift.max_steps=100`` on the smoke profile gives the bench
-profile's episode length (the lift env's default).
+profile's episode length (the lift env's default).  The lift jobs of earlier invocations are deleted before each
+timed one (``stages/evaluate-execution``, :mod:`tasks.lift_jobs`), so every pose is lifted; one more invocation at the
+end, with the jobs of the last one kept, times an evaluation served from its finished jobs (``served_s``).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -47,14 +50,16 @@ def main(argv: list[str] | None = None) -> int:
     results = args.workdir / "results" / "execution"
     for _ in range(args.repeats):
         for workers in (1, args.workers):
+            shutil.rmtree(args.workdir / "stages" / "evaluate-execution", ignore_errors=True)
             times[workers].append(round(_evaluate(args.workdir, args.profile, args.sets, workers), 2))
             outcomes[workers] = {p.parent.name: p.read_text() for p in results.glob("*/outcomes.json")}
             print(f"workers {workers}: {times[workers][-1]} s", file=sys.stderr, flush=True)
-    same = outcomes[1] == outcomes[args.workers]
+    served = round(_evaluate(args.workdir, args.profile, args.sets, args.workers), 2)
+    same = outcomes[1] == outcomes[args.workers] == {p.parent.name: p.read_text() for p in results.glob("*/outcomes.json")}
     medians = {w: statistics.median(t) for w, t in times.items()}
     summary = json.loads((args.workdir / "results" / "execution.json").read_text())
     result = {"times_s": {str(w): t for w, t in times.items()}, "median_s": {str(w): m for w, m in medians.items()},
-              "speedup": round(medians[1] / medians[args.workers], 3), "same_outcomes": same,
+              "speedup": round(medians[1] / medians[args.workers], 3), "same_outcomes": same, "served_s": served,
               "poses": {r["setting"]: r["n_poses"] for r in summary["rows"]},
               "trials": summary["rows"][0]["trials"], "profile": args.profile, "sets": args.sets,
               "cpu_count": os.cpu_count()}

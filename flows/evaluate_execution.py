@@ -187,7 +187,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
 
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
-    setting = lift_setting(cfg, scripted, gifs) if cached else ""
+    settings = {g: lift_setting(cfg, scripted, g) for g in (False, True)} if cached else {False: "", True: ""}
     jobs: list[tuple[list[str], LiftJob]] = []  # (combinations, job), in specialist and pose order
     done: dict[int, LiftJobResult] = {}  # job index -> result served from its unit
     for label, group in sorted(groups.items()):
@@ -195,12 +195,13 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         keys = [pose_key(record, i) for i, record in enumerate(group)]  # of the pre-grasps, before any reach
         combinations = [record.meta.get("combination") or "+".join(record.scene.names) for record in group]
         for a, b in pose_chunks(len(group), stage.eval_chunk_poses):
-            spec = lift_unit_spec(workdir=cfg.run.workdir, label=label, first=a, setting=setting,
+            gif_job = gifs and a == 0 and stage.gifs_per_outcome > 0  # GIFs of the first job of each specialist
+            spec = lift_unit_spec(workdir=cfg.run.workdir, label=label, first=a, setting=settings[gif_job],
                                   policy=Path(entry["policy"]), encoder_key=outputs["pointnet"].key,
                                   records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b]) if cached else None
             job = LiftJob(label=label, factory=None, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
                           joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
-                          gif_folder=str(scratch / name) if gifs and a == 0 else None, spec=spec)
+                          gif_folder=str(scratch / name) if gif_job else None, spec=spec)
             result = finished_result(spec) if spec is not None else None
             if result is not None:
                 done[len(jobs)] = result
@@ -239,13 +240,13 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
 
 def lift_setting(cfg: PipelineConfig, scripted: bool, gifs: bool) -> str:
     """The config part of a lift job's key (:mod:`tasks.lift_jobs`): the lift, hand and objects sections, the
-    evaluation fields of the specialists section, the reach setting when the poses are reached first, and which
-    controllers and GIFs the job makes."""
+    evaluation fields of the specialists section (``gifs_per_outcome`` only for a job that makes GIFs), the reach
+    setting when the poses are reached first, and which controllers and GIFs the job makes."""
     from tasks.lift_jobs import EVALUATION_FIELDS
 
     stage = cfg.specialists
-    extra = {"fields": {name: getattr(stage, name) for name in EVALUATION_FIELDS}, "scripted": scripted,
-             "gifs": gifs and stage.gifs_per_outcome > 0,
+    fields = {name: getattr(stage, name) for name in EVALUATION_FIELDS if gifs or name != "gifs_per_outcome"}
+    extra = {"fields": fields, "scripted": scripted, "gifs": gifs,
              "reach": cfg.reach.reaching.model_dump(mode="json") if stage.eval_after_reach else None}
     return section_digest(cfg, "lift", "hand", "objects", extra=extra)
 

@@ -455,3 +455,22 @@ def test_raising_the_iterations_continues_the_finished_specialists(runs, capsys)
         assert [h["iteration"] for h in history] == [1, 2, 3]
         validations = json.loads(manifest.path("validations").read_text())["rows"]
         assert [v["iteration"] for v in validations] == [0, 1, 2, 3]
+
+
+def test_a_lift_jobs_setting_counts_the_gif_quota_only_for_the_jobs_that_make_gifs():
+    """Lift-job keys (tasks/lift_jobs.py): the evaluation fields count, the GIF quota only where the job makes
+    GIFs, how jobs are cut and how many workers lift them never (nor do they count in the results' config key)."""
+    from flows.config import evaluation_key, load_config, with_overrides
+    from flows.evaluate_execution import lift_setting
+
+    cfg = load_config("smoke")
+    quota = with_overrides(cfg, {"specialists.gifs_per_outcome": 5})
+    assert lift_setting(quota, True, False) == lift_setting(cfg, True, False)
+    assert lift_setting(quota, True, True) != lift_setting(cfg, True, True)
+    assert lift_setting(cfg, True, True) != lift_setting(cfg, True, False) != lift_setting(cfg, False, False)
+    for override in ({"specialists.eval_trials": 2}, {"specialists.squeeze_action": 0.3}, {"lift.max_steps": 30}):
+        assert lift_setting(with_overrides(cfg, override), True, False) != lift_setting(cfg, True, False)
+    for override in ({"specialists.eval_chunk_poses": 3}, {"run.max_workers": 1}):
+        other = with_overrides(cfg, override)
+        assert lift_setting(other, True, True) == lift_setting(cfg, True, True)
+        assert evaluation_key(other, "execution.json") == evaluation_key(cfg, "execution.json")
