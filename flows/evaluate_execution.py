@@ -279,11 +279,12 @@ def _gifs_beside_results(gifs: list[Path], jobs: list, results: list, scratch: P
     return out
 
 
-def evaluation_workers(cfg: PipelineConfig) -> int:
-    """Processes that lift an evaluation's poses: ``run.max_workers``, at most the machine's cores."""
+def evaluation_workers(run) -> int:
+    """Processes that lift an evaluation's poses (``run``: the config's ``run`` section): ``run.max_workers``, at most
+    the machine's cores."""
     import os
 
-    return max(1, min(cfg.run.max_workers, os.cpu_count() or 1))
+    return max(1, min(run.max_workers, os.cpu_count() or 1))
 
 
 def pose_chunks(n: int, size: int) -> list[tuple[int, int]]:
@@ -305,9 +306,17 @@ def _worker_init() -> None:
 
 
 @contextlib.contextmanager
-def lift_pool(workers: int):
-    """Worker processes for :func:`run_lift_jobs`, started once for a whole evaluation (each imports torch and
-    PyBullet: seconds), or None with one worker."""
+def lift_pool(run):
+    """Where :func:`run_lift_jobs` lifts the jobs of a whole command, by ``run.runner``: ``ray``, as tasks of the
+    invocation's Ray (:class:`RayLiftPool`: a local Ray, or the cluster of ``run.ray_address``); otherwise in
+    ``run.max_workers`` spawned processes (at most the machine's cores: :func:`evaluation_workers`), started once
+    (each imports torch and PyBullet: seconds), or None with one worker (lifted in the command's process).
+    PyBullet holds the GIL, so the ``threads`` runner's threads would gain nothing here."""
+    if run.runner == "ray":
+        with RayLiftPool.session(run) as pool:
+            yield pool
+        return
+    workers = evaluation_workers(run)
     if workers <= 1:
         yield None
         return
@@ -325,6 +334,44 @@ def lift_pool(workers: int):
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+class RayLiftPool:
+    """Lift jobs as Ray tasks (one CPU each) of the invocation's Ray, with the ``submit(fn, *args)`` ->
+    ``concurrent.futures.Future`` of a process pool.  The jobs are cached units in the work dir, so on a cluster the
+    work dir must be on storage every node sees (as for the stages).  Evaluation is not a Prefect flow (its results
+    are not cached stage outputs), so its jobs go to Ray directly rather than through prefect-ray's task runner;
+    the Ray is the one :func:`flows.runtime.ray_session` starts or joins for the stages."""
+
+    def __init__(self, ray):
+        self._ray, self._remote, self.refs = ray, {}, []
+
+    @classmethod
+    @contextlib.contextmanager
+    def session(cls, run):
+        from flows.runtime import ray_session
+        from tasks.units import records_dir
+
+        with ray_session(run, records_dir(run.workdir)):  # without Ray installed: one line naming the extra
+            import ray
+
+            pool = cls(ray)
+            try:
+                yield pool
+            except BaseException:  # Ctrl-C or an error: the finished jobs are in their units; stop the others
+                pool.cancel()
+                raise
+
+    def submit(self, fn, *args):
+        if fn not in self._remote:
+            self._remote[fn] = self._ray.remote(num_cpus=1)(fn)
+        ref = self._remote[fn].remote(*args)
+        self.refs.append(ref)
+        return ref.future()
+
+    def cancel(self) -> None:
+        for ref in self.refs:
+            self._ray.cancel(ref, force=True)
 
 
 def run_lift_jobs(jobs: list, pool, progress: "_Progress", done: dict | None = None) -> list:
@@ -451,7 +498,7 @@ def evaluate_execution(cfg: PipelineConfig, ablations: bool = False, parent_run_
     say = make_console().print
     outputs = _stage_outputs(cfg)
     scratch = cfg.run.workdir / "results" / "execution"
-    with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
+    with lift_pool(cfg.run) as pool:  # started once: each worker imports torch and PyBullet
         rows, ablation, gifs = _evaluate_settings(cfg, ablations, outputs, scratch, say, pool)
     return _write_execution(cfg, outputs, rows, ablation, gifs, ablations, parent_run_id)
 

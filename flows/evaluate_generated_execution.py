@@ -26,7 +26,7 @@ from typing import Any
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, evaluation_key
 from flows.evaluate_execution import (EVALUATED_OBJECTS, SQUEEZE_ROW, _pct, _stage_outputs, evaluate_split,
-                                      evaluation_workers, lift_pool, write_outcomes)
+                                      lift_pool, write_outcomes)
 from flows.paper import execution_paper
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
@@ -68,7 +68,7 @@ def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None 
     hand = HandModel(cfg.hand)
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     results = cfg.run.workdir / "results"
-    with lift_pool(evaluation_workers(cfg)) as pool:  # started once: each worker imports torch and PyBullet
+    with lift_pool(cfg.run) as pool:  # started once: each worker imports torch and PyBullet
         rows, gifs = _evaluate_generated(cfg, outputs, model, hand, library, read_scene_records(scenes),
                                          results / "execution_generated", make_console().print, pool)
     if not any(r["generated"] for r in rows):

@@ -197,7 +197,7 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
     at most ``specialists.eval_poses`` of them, ``eval_trials`` seeded trials each, after the planned reach with
     ``eval_after_reach``).  Writes ``folder/lift.json`` and ``folder/lift/outcomes.json``."""
     from components.execution.lift_sim import GraspRecord
-    from flows.evaluate_execution import evaluate_split, evaluation_workers, lift_pool, write_outcomes
+    from flows.evaluate_execution import evaluate_split, lift_pool, write_outcomes
 
     stage = cfg.specialists
     combination = "+".join(scene.names)
@@ -208,7 +208,7 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
                for i, r in enumerate(rows) if r["kept"]]
     scratch = folder / "lift"
     if records:
-        with lift_pool(evaluation_workers(cfg)) as pool:
+        with lift_pool(cfg.run) as pool:
             res = evaluate_split(cfg, outputs, "generated", scratch, scripted=True, records=records, say=say,
                                  title=f"lift {combination}", pool=pool, cached=False)  # a one-off, in its own folder
         write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)

@@ -218,13 +218,14 @@ def plan_lines(plan: PrunePlan) -> list[str]:
 
     present = {c.stage for c in plan.candidates} | set(plan.kept_units) | set(plan.guarded)
     stages = [s for s in stage_names() if s in present] + sorted(present - set(stage_names()))
+    width = max([16, *map(len, stages)])
     for stage in stages:
         mine = [c for c in plan.candidates if c.stage == stage]
         reasons = {}
         for c in mine:
             reasons[c.reason] = reasons.get(c.reason, 0) + 1
         why = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items()))
-        line = (f"  {stage:<16} delete {len(mine):>3} ({human_bytes(sum(c.bytes for c in mine))}"
+        line = (f"  {stage:<{width}} delete {len(mine):>3} ({human_bytes(sum(c.bytes for c in mine))}"
                 f"{'; ' + why if why else ''}), keep {plan.kept_units.get(stage, 0)}")
         if stage in plan.guarded:
             line += f" — all kept: {plan.guarded[stage]}"
