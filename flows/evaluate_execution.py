@@ -142,14 +142,15 @@ def reached_once(group: list, cfg: PipelineConfig, hand, library, urdf: Path, me
 def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, scripted: bool = False,
                    gifs: bool = True, reach_memo: dict | None = None,
                    say: Callable[[str], None] | None = None, title: str = "", records: list | None = None,
-                   pool=None, cached: bool = True) -> SplitResult:
+                   pool=None, cached: bool = True, results_file: str = "execution.json") -> SplitResult:
     """Lift ``eval_poses`` pre-grasps of ``split`` (evenly spread) with their matching specialists (module docstring).
     ``reach_memo``: end-of-reach records shared between calls (:func:`reached_once`).  ``say``: receives a
     progress line (counts, elapsed, ETA) as each specialist's poses finish.  ``records``: the pre-grasps to lift
     instead of the synthesize stage's (generated ones).  ``pool``: worker processes (:func:`lift_pool`) that lift the
     jobs; without it they are lifted here.  Each specialist's poses are lifted in jobs of ``eval_chunk_poses``;
     ``cached``: each job is a unit (:mod:`tasks.lift_jobs`), so the jobs that finished before (an evaluation killed
-    halfway, a rerun) are served from their units and only the others are reached and lifted."""
+    halfway, a rerun) are served from their units and only the others are reached and lifted; a job's manifest
+    records the :func:`flows.config.evaluation_key` of ``results_file`` for ``cfg`` (``status`` counts by it)."""
     from components.execution.clustering import bin_label
     from components.execution.records import record_to_dict
     from tasks.preflight import cache_dir
@@ -188,6 +189,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     settings = {g: lift_setting(cfg, scripted, g) for g in (False, True)} if cached else {False: "", True: ""}
+    meta = {"config_key": evaluation_key(cfg, results_file)} if cached else {}
     jobs: list[tuple[list[str], LiftJob]] = []  # (combinations, job), in specialist and pose order
     done: dict[int, LiftJobResult] = {}  # job index -> result served from its unit
     for label, group in sorted(groups.items()):
@@ -201,7 +203,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
                                   records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b]) if cached else None
             job = LiftJob(label=label, factory=None, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
                           joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
-                          gif_folder=str(scratch / name) if gif_job else None, spec=spec)
+                          gif_folder=str(scratch / name) if gif_job else None, spec=spec, meta=meta)
             result = finished_result(spec) if spec is not None else None
             if result is not None:
                 done[len(jobs)] = result
@@ -540,7 +542,7 @@ def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scra
         run_pipeline(variant, [specialists_stage], command=f"ablation:{name}")
         folder = scratch / "ablations" / name.replace("/", "").replace(" ", "_")
         res = evaluate_split(variant, _stage_outputs(variant), "Pl", folder, gifs=False, reach_memo=reach_memo,
-                             say=say, title=name, pool=pool)
+                             say=say, title=name, pool=pool, results_file="ablation_execution.json")
         write_outcomes(folder / "outcomes.json", res, stage.eval_trials)
         ablation.append({"setting": name, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,
                          "trials": stage.eval_trials, "overrides": overrides})

@@ -114,7 +114,8 @@ def _evaluate_generated(cfg: PipelineConfig, outputs: dict, model, hand, library
         records = records_from_table(kept) if len(kept) else []
         scripted = setting == "Gen-Pl"
         res = evaluate_split(cfg, outputs, split, scratch / setting, scripted=scripted, reach_memo=reach_memo,
-                             say=say, title=setting, records=records, pool=pool)
+                             say=say, title=setting, records=records, pool=pool,
+                             results_file="execution_generated.json")
         gifs += res.gifs
         write_outcomes(scratch / setting / "outcomes.json", res, stage.eval_trials)
         row = {"setting": setting, "succ": res.rate(res.wins, res.total), "n_poses": res.poses,

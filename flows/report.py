@@ -270,4 +270,22 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
             detail = f"profile {profile}" + (f"; Ours, w/o RL and the squeeze only — `{command}` for every row"
                                              if partial else "")
             rows.append(EvaluationStatus(name, "current", detail, ablations=not partial))
-    return rows
+    return [_with_lift_jobs(cfg, row) for row in rows]
+
+
+#: Results files whose evaluation lifts in cached jobs (:mod:`tasks.lift_jobs`).
+LIFTED = ("execution.json", "execution_generated.json")
+
+
+def _with_lift_jobs(cfg, row: EvaluationStatus) -> EvaluationStatus:
+    """A lift evaluation that is not current, with how many of its lift jobs already finished (an evaluation killed
+    halfway): its rerun serves them."""
+    from dataclasses import replace
+
+    from flows.config import evaluation_key
+    from tasks.lift_jobs import finished_jobs
+
+    if row.name not in LIFTED or row.state == "current":
+        return row
+    done = finished_jobs(cfg.run.workdir, evaluation_key(cfg, row.name))
+    return replace(row, detail=f"{row.detail}; {done} lift job(s) of this config finished; a rerun serves them") if done else row

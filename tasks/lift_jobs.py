@@ -51,6 +51,9 @@ class LiftJob:
     gif_folder: str | None
     spec: UnitSpec | None = None
     """The job's unit (:func:`lift_unit_spec`); None: lifted without a cache (``generate --lift``)."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """Kept in the unit's manifest: ``config_key``, the evaluation key of the results file whose evaluation lifted
+    it first (:func:`finished_jobs` counts a config's finished jobs by it)."""
 
 
 @dataclass
@@ -79,6 +82,18 @@ def finished_result(spec: UnitSpec) -> LiftJobResult | None:
     return None if manifest is None else read_result(manifest)
 
 
+def finished_jobs(workdir: Path, config_key: str) -> int:
+    """How many lift jobs in ``workdir`` an evaluation with this ``config_key`` lifted first and finished (their
+    manifests are read, not verified: a count for ``status``, not a cache check).  Jobs it was served from another
+    config's evaluation are not counted, so this is at least what a rerun of the evaluation serves."""
+    from tasks.artifacts import read_manifest, unit_folder
+
+    stage_dir = unit_folder(Path(workdir), STAGE, "_").parent
+    folders = [p for p in stage_dir.iterdir() if p.is_dir()] if stage_dir.is_dir() else []
+    return sum(1 for folder in folders
+               if (manifest := read_manifest(folder)) is not None and manifest.meta.get("config_key") == config_key)
+
+
 def read_result(manifest: Manifest) -> LiftJobResult:
     data = json.loads(manifest.path("result").read_text())
     gifs = [str(Path(manifest.folder) / name) for name in data.pop("gifs")]
@@ -98,7 +113,7 @@ def run_lift_job(job: LiftJob, progress: Any = None) -> LiftJobResult:
         path = atomic_write_json(folder / RESULT_FILE, {**dataclasses.asdict(result), "gifs": names})
         return UnitOutput(files={"result": path, **{f"gif:{n}": folder / n for n in names}},
                           metrics={"poses": len(job.keys), "policy_successes": sum(result.policy)},
-                          meta={"specialist": job.label})
+                          meta={"specialist": job.label, **job.meta})
 
     return read_result(run_unit(job.spec, body))
 

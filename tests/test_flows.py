@@ -90,6 +90,12 @@ def test_an_evaluation_killed_halfway_relifts_only_its_unfinished_jobs_and_worke
     monkeypatch.setattr(tasks.lift_jobs, "lift_job", real)
     first = _lift_job_keys(workdir)
     assert len(first) == 3 and not (workdir / "results" / "execution.json").exists()
+    from flows.report import evaluation_status  # status says how far the killed evaluation got
+
+    sets = [item for item in argv[argv.index("--set"):] if item != "--set"]
+    row = next(r for r in evaluation_status(load_config("smoke", sets=sets, workdir=workdir))
+               if r.name == "execution.json")
+    assert row.state == "missing" and "2 lift job(s) of this config finished" in row.detail
     assert main([*argv, "--max-workers", "1"]) == 0
     second = _lift_job_keys(workdir)[3:]
     assert first[2] in second and not {first[0], first[1]} & set(second)  # the two finished jobs were served
