@@ -288,4 +288,6 @@ def _with_lift_jobs(cfg, row: EvaluationStatus) -> EvaluationStatus:
     if row.name not in LIFTED or row.state == "current":
         return row
     done = finished_jobs(cfg.run.workdir, evaluation_key(cfg, row.name))
-    return replace(row, detail=f"{row.detail}; {done} lift job(s) of this config finished; a rerun serves them") if done else row
+    if not done:
+        return row
+    return replace(row, detail=f"{row.detail}; {done} lift job(s) of this config finished; a rerun serves them")
