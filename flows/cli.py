@@ -596,8 +596,8 @@ class Interrupts:
         self.count += 1
         stream = self._stream or sys.stderr
         if self.count == 1:
-            print("stopping — work running in a thread finishes first; press Ctrl-C again (or send SIGTERM "
-                  "again) to stop at once", file=stream, flush=True)
+            print("stopping — a unit running in a worker thread (a shard, a training) finishes first; press Ctrl-C "
+                  "again (or send SIGTERM again) to stop at once", file=stream, flush=True)
             raise KeyboardInterrupt
         for pid in self._children():
             try:
