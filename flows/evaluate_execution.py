@@ -21,6 +21,10 @@ with ``--ablations``, ``w/o Goal``, ``w/o Spe-Pl``, ``w/o Spe-Com``, ``w/o Spe``
 with the overrides of :data:`ABLATIONS` (its own cached units) and evaluated on Syn-Pl the same way;
 without the flag those rows have ``succ: null`` and say how to get them.  Both files, and a
 markdown table, are logged to their own MLflow run.
+
+The poses are lifted in cached jobs of ``specialists.eval_chunk_poses`` (:mod:`tasks.lift_jobs`): an evaluation
+killed halfway relifts only the jobs that had not finished.  :func:`lift_pool` chooses where they run
+(``run.runner``: spawned processes, or Ray tasks).
 """
 
 from __future__ import annotations
