@@ -11,8 +11,9 @@ job's GIFs, under a manifest that verifies them.  The key (:func:`lift_unit_spec
 depend on: the specialist's policy file, the point-cloud encoder, the poses (and with ``eval_after_reach`` the
 reach setting), the lift / hand / objects settings, the evaluation fields of :data:`EVALUATION_FIELDS` and the code
 of :data:`LIFT_CODE`.  An evaluation killed halfway (Ctrl-C, a crash, a cluster's time limit) therefore relifts
-only the jobs that had not finished when it is run again, and ``run --evaluate`` after a change that leaves a
-job's key alone (another ``eval_poses`` keeps no job; a new ablation keeps the Syn-Pl ones) lifts nothing twice.
+only the jobs that had not finished when it is run again, and an evaluation after a change that leaves a job's key
+alone serves that job (``--ablations`` after a plain run serves the Syn-Pl jobs; another ``eval_poses`` spreads the
+poses anew, so few jobs stay the same).
 """
 
 from __future__ import annotations
