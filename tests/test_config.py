@@ -16,6 +16,14 @@ def test_profiles_smoke_mini_bench_paper_load():
         assert cfg.run.workdir.is_absolute()
 
 
+def test_the_paper_profile_has_the_papers_lifting_budget_and_evaluation_size():
+    """The paper's text: 8000 PPO iterations of 512 environments per policy, 512 evaluation poses x 5 trials (until
+    the fifty-first session the profile left PPO and the evaluation at the defaults, 50 x 2000 frames and 100)."""
+    specialists = load_config("paper").specialists
+    assert specialists.ppo.iterations == 8000 and specialists.ppo.frames_per_batch == 512 * 16
+    assert (specialists.eval_poses, specialists.eval_trials) == (512, 5) and specialists.init_policy == "zero"
+
+
 def test_bench_pairs_choose_no_palm_contacts_while_singles_and_many_objects_keep_them():
     synthesis = load_config("bench").synthesis
     assert synthesis.optimizer_for(2).contact_regions_excluded == ["palm", "palm_hypothenar"]
