@@ -69,8 +69,10 @@ def _config_args(parser: argparse.ArgumentParser) -> None:
                                                      "(default ./runs)")
     group.add_argument("--device", choices=["cpu", "cuda"], help="torch device for model code (default cpu)")
     group.add_argument("--runner", choices=["threads", "processes", "ray"],
-                       help="Prefect task runner for fan-out (default threads)")
-    group.add_argument("--max-workers", type=int, help="parallel workers of the task runner")
+                       help="Prefect task runner for fan-out (default threads); the evaluations' lift jobs go to "
+                       "spawned processes, or to Ray tasks with ray")
+    group.add_argument("--max-workers", type=int,
+                       help="parallel workers of the task runner, and the evaluations' lift processes")
     group.add_argument("-v", "--verbose", action="store_true", help="log cache decisions and Prefect messages")
 
 
