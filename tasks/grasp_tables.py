@@ -11,11 +11,12 @@ from tasks.artifacts import Manifest
 RecordsSource = Literal["accepted", "lowest_energy"]
 
 
-def grasp_rows(synthesis: Manifest, source: RecordsSource, per_scene: int, splits: list[str], max_objects: int):
+def grasp_rows(synthesis: Manifest, source: RecordsSource, per_scene: int, splits: list[str], max_objects: int,
+               min_objects: int = 1):
     """Rows of the synthesis tables, sorted by scene and candidate: with ``source='accepted'`` the accepted
     grasps; with ``'lowest_energy'`` the ``per_scene`` lowest-energy candidates of each scene whatever the
     filter said (the smoke profile's stand-in when its tiny synthesis accepts none: plumbing, never results;
-    their ``accepted`` column is kept).  Only ``splits`` and scenes of at most ``max_objects`` objects."""
+    their ``accepted`` column is kept).  Only ``splits`` and scenes of ``min_objects`` to ``max_objects`` objects."""
     import pandas as pd
 
     frame = pd.read_parquet(synthesis.path("grasps"))
@@ -26,5 +27,6 @@ def grasp_rows(synthesis: Manifest, source: RecordsSource, per_scene: int, split
             frame = frame.sort_values(["scene_id", "energy"]).groupby("scene_id", sort=True).head(per_scene)
     if not len(frame):
         return frame
-    frame = frame[frame["split"].isin(splits) & (frame["object_names"].map(len) <= max_objects)]
+    counts = frame["object_names"].map(len)
+    frame = frame[frame["split"].isin(splits) & (counts <= max_objects) & (counts >= min_objects)]
     return frame.sort_values(["scene_id", "row"])

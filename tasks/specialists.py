@@ -70,6 +70,11 @@ class SpecialistsStageConfig(Section):
     lowest_energy_per_scene: int = Field(2, ge=1, description="With records_source=lowest_energy: candidates taken per scene.")
     splits: list[str] = Field(default_factory=lambda: ["train"], description="Synthesis splits the specialists train on.")
     max_objects: int = Field(2, ge=1, description="Pre-grasps of scenes with more objects are left out (the paper's specialists: 1-2 objects).")
+    min_objects: int = Field(
+        1, ge=1,
+        description="Pre-grasps of scenes with fewer objects are left out.  The bench profile sets 2: its max_bins "
+        "takes the largest bins, which are single objects otherwise (singles accept more grasps), and evaluate "
+        "execution lifts dual-object pre-grasps, which need a two-object specialist.")
     min_records_per_bin: int = Field(1, ge=1, description="Bins with fewer pre-grasps get no specialist.")
     max_bins: int = Field(0, ge=0, description="Train at most this many bins, the largest first (0 = every bin).")
     validation_poses: int = Field(
@@ -142,7 +147,8 @@ def records_from_table(frame) -> list[GraspRecord]:
 
 def select_records(synthesis: Manifest, stage: SpecialistsStageConfig, splits: list[str]) -> list[GraspRecord]:
     """The pre-grasps of ``splits`` per ``records_source`` (module docstring), scene and row order."""
-    frame = grasp_rows(synthesis, stage.records_source, stage.lowest_energy_per_scene, splits, stage.max_objects)
+    frame = grasp_rows(synthesis, stage.records_source, stage.lowest_energy_per_scene, splits, stage.max_objects,
+                       stage.min_objects)
     return records_from_table(frame) if len(frame) else []
 
 

@@ -274,3 +274,25 @@ def test_the_objects_digest_follows_contents_not_where_the_files_lie(tmp_path):
     assert keys[0] == keys[1]
     trimesh.creation.box(extents=(0.03, 0.03, 0.05)).export(second / "meshes" / "mug.obj")
     assert section_digest(load_config("smoke", config_file=second / "my.yaml", workdir=tmp_path), "objects") != keys[0]
+
+
+def test_the_bench_specialists_train_pair_bins_only_as_the_evaluation_lifts_pairs(tmp_path):
+    """With max_bins 4 the largest bins were single objects, and evaluate execution's dual-object pre-grasps matched
+    no specialist: the bench profile keeps pair pre-grasps only (specialists.min_objects 2)."""
+    import pandas as pd
+
+    from tasks.grasp_tables import grasp_rows
+
+    stage = load_config("bench").specialists
+    assert (stage.min_objects, stage.max_objects) == (2, 2)
+
+    class Table:
+        def path(self, name):
+            return self.file
+
+    table = Table()
+    table.file = tmp_path / "grasps.parquet"
+    pd.DataFrame({"split": ["train"] * 3, "object_names": [["cube"], ["cube", "bar"], ["a", "b", "c"]],
+                  "scene_id": ["s1", "s2", "s3"], "row": [0, 0, 0], "accepted": [True] * 3}).to_parquet(table.file)
+    assert list(grasp_rows(table, "accepted", 1, ["train"], 2, 2)["scene_id"]) == ["s2"]
+    assert list(grasp_rows(table, "accepted", 1, ["train"], 2)["scene_id"]) == ["s1", "s2"]
