@@ -160,7 +160,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     from tasks.preflight import cache_dir
     from components.hand import HandModel
     from components.hand.model import URDF_FILE_NAME
-    from tasks.lift_jobs import LiftJob, LiftJobResult, finished_result, lift_unit_spec
+    from tasks.artifacts import code_version, sha256_file
+    from tasks.lift_jobs import LIFT_CODE, LiftJob, LiftJobResult, finished_result, lift_unit_spec
     from tasks.specialist_index import read_specialist_index
     from tasks.specialists import select_records, spread_records, squeeze_lift
 
@@ -193,6 +194,8 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     settings = {g: lift_setting(cfg, scripted, g) for g in (False, True)} if cached else {False: "", True: ""}
+    code = code_version(*LIFT_CODE) if cached else ""
+    policy_digests = {label: sha256_file(Path(index[label]["policy"])) for label in groups} if cached else {}
     meta = {"config_key": evaluation_key(cfg, results_file)} if cached else {}
     jobs: list[tuple[list[str], LiftJob]] = []  # (combinations, job), in specialist and pose order
     done: dict[int, LiftJobResult] = {}  # job index -> result served from its unit
@@ -203,8 +206,9 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         for a, b in pose_chunks(len(group), stage.eval_chunk_poses):
             gif_job = gifs and a == 0 and stage.gifs_per_outcome > 0  # GIFs of the first job of each specialist
             spec = lift_unit_spec(workdir=cfg.run.workdir, label=label, first=a, setting=settings[gif_job],
-                                  policy=Path(entry["policy"]), encoder_key=outputs["pointnet"].key,
-                                  records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b]) if cached else None
+                                  policy_digest=policy_digests[label], encoder_key=outputs["pointnet"].key,
+                                  records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b],
+                                  code=code) if cached else None
             job = LiftJob(label=label, factory=None, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
                           joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
                           gif_folder=str(scratch / name) if gif_job else None, spec=spec, meta=meta)
@@ -224,23 +228,17 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
     if done:
         progress.served(sum(len(jobs[i][1].keys) for i in done), len(done))
     results = run_lift_jobs([job for _, job in jobs], pool, progress, done)
-    gif_paths: list[Path] = []
+    gifs_out: list[Path] = []
     for (combinations, job), result in zip(jobs, results):
-        out.wins += sum(result.policy)
-        out.total += len(result.policy) * stage.eval_trials
+        _count(out, job, result)
         out.poses += len(result.policy)
-        gif_paths += [Path(g) for g in result.gifs]
-        if scripted:
-            out.scripted_wins += sum(result.wo_rl)
-            out.scripted_total += len(result.wo_rl) * stage.eval_trials
-            out.squeeze_wins += sum(result.squeeze)
-            out.squeeze_total += len(result.squeeze) * stage.eval_trials
+        gifs_out += _gifs_beside_results(job, result, scratch)
         for i, key in enumerate(job.keys):
             row = {"specialist": job.label, "combination": combinations[i], "pose_key": key, "policy": result.policy[i]}
             if scripted:
                 row.update({"w/o RL": result.wo_rl[i], "squeeze": result.squeeze[i]})
             out.outcomes.append(row)
-    out.gifs = tuple(_gifs_beside_results(gif_paths, jobs, results, scratch))
+    out.gifs = tuple(gifs_out)
     return out
 
 
@@ -269,15 +267,14 @@ def lift_env_factory(cfg: PipelineConfig, outputs: dict, urdf: Path, records: li
                           lift_cfg=cfg.lift.model_dump(mode="json"), encoder=str(outputs["pointnet"].path("encoder")))
 
 
-def _gifs_beside_results(gifs: list[Path], jobs: list, results: list, scratch: Path) -> list[Path]:
-    """The jobs' GIFs (in their units) copied under ``scratch/<specialist>/``, where the evaluation's results are
-    browsed; the copies are what MLflow logs."""
+def _gifs_beside_results(job, result, scratch: Path) -> list[Path]:
+    """A job's GIFs (in its unit) copied under ``scratch/<specialist>/``, where the evaluation's results are browsed;
+    the copies are what MLflow logs."""
     import shutil
 
     out = []
-    for gif in gifs:
-        label = next(job.label for (_, job), result in zip(jobs, results) if str(gif) in result.gifs)
-        target = scratch / label.replace("/", "_") / gif.name
+    for gif in map(Path, result.gifs):
+        target = scratch / job.label.replace("/", "_") / gif.name
         if gif.parent != target.parent:
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(gif, target)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tasks.artifacts import Manifest, atomic_write_json, code_version, digest, sha256_file, valid_manifest
+from tasks.artifacts import Manifest, atomic_write_json, digest, valid_manifest
 from tasks.specialists import SPECIALIST_CODE_DIRS
 from tasks.units import UnitOutput, UnitSpec, make_spec, run_unit
 
@@ -65,16 +65,18 @@ class LiftJobResult:
     gifs: list[str] = field(default_factory=list)
 
 
-def lift_unit_spec(*, workdir: Path, label: str, first: int, setting: str, policy: Path, encoder_key: str,
-                   records: list[dict], keys: list[int]) -> UnitSpec:
+def lift_unit_spec(*, workdir: Path, label: str, first: int, setting: str, policy_digest: str, encoder_key: str,
+                   records: list[dict], keys: list[int], code: str) -> UnitSpec:
     """The unit of a job of specialist ``label`` over ``records`` (as dicts, before any reach; their seed ``keys``):
-    ``setting`` is the digest of the settings its outcomes depend on (module docstring), ``first`` the index of the
-    job's first pose among the specialist's poses (a name for the log, part of the key)."""
+    ``setting`` is the digest of the settings its outcomes depend on (module docstring), ``policy_digest`` the
+    sha256 of the specialist's policy file, ``code`` :func:`code_version` of :data:`LIFT_CODE` (both computed once
+    per evaluated split by the caller, not per job), ``first`` the index of the job's first pose among the
+    specialist's poses (a name for the log, part of the key)."""
     name = "lift-" + label.replace("/", "-")
     return make_spec(stage=STAGE, unit=f"{name}-{first}", section_digest=setting,
-                     upstream={"policy": sha256_file(Path(policy))[:20], "pointnet": encoder_key[:20],
+                     upstream={"policy": policy_digest[:20], "pointnet": encoder_key[:20],
                                "poses": digest({"records": records, "keys": keys})[:20]},
-                     code=code_version(*LIFT_CODE), workdir=workdir)
+                     code=code, workdir=workdir)
 
 
 def finished_result(spec: UnitSpec) -> LiftJobResult | None:

@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 from prefect import task
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from components.config_base import Section
 from components.errors import MultigraspError
@@ -128,6 +128,13 @@ class SpecialistsStageConfig(Section):
         "a controller that already lifts some pre-grasps.  On 60 bench singles with the bench PPO, 120 k frames "
         "(python -m benchmarks.ppo_experiment): zero 0/60 -> 1/60 lifted by the deterministic policy, squeeze_lift "
         "5/60 -> 7/60 (README, 'Lifting the bench pre-grasps').")
+
+    @model_validator(mode="after")
+    def _object_counts(self) -> "SpecialistsStageConfig":
+        if self.min_objects > self.max_objects:
+            raise ValueError(f"min_objects ({self.min_objects}) exceeds max_objects ({self.max_objects}): no "
+                             "pre-grasp would be kept")
+        return self
 
 
 # --------------------------------------------------------------------------- records from the synthesis tables

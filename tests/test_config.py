@@ -285,6 +285,10 @@ def test_the_bench_specialists_train_pair_bins_only_as_the_evaluation_lifts_pair
 
     stage = load_config("bench").specialists
     assert (stage.min_objects, stage.max_objects) == (2, 2)
+    from components.errors import MultigraspError
+
+    with pytest.raises(MultigraspError, match="min_objects .3. exceeds max_objects"):
+        load_config("bench", sets=["specialists.min_objects=3"])
 
     class Table:
         def path(self, name):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import os
 import re
 import sys
@@ -17,6 +16,7 @@ from flows.config import load_config
 from flows.pipeline import status
 from tasks.artifacts import read_manifest
 from tasks.units import executions
+from tests.standins import FakeRay
 
 pytestmark = pytest.mark.slow
 
@@ -111,7 +111,7 @@ def test_an_evaluation_killed_halfway_relifts_only_its_unfinished_jobs_and_worke
 
     # --runner ray: the jobs are Ray tasks of the invocation's Ray (a stand-in here: CI installs no Ray)
     shutil.rmtree(workdir / "stages" / "evaluate-execution")
-    ray = _TaskRay()
+    ray = FakeRay()
     monkeypatch.setitem(sys.modules, "ray", ray)
     monkeypatch.setitem(sys.modules, "prefect_ray", types.ModuleType("prefect_ray"))
     assert main([*argv, "--runner", "ray"]) == 0
@@ -119,45 +119,6 @@ def test_an_evaluation_killed_halfway_relifts_only_its_unfinished_jobs_and_worke
     tasks_run = [options for name, options in ray.calls if name == "task"]
     assert len(tasks_run) >= 2 and all(options == {"num_cpus": 1} for options in tasks_run)
     assert outcomes() == resumed
-
-
-class _TaskRay(types.ModuleType):
-    """A stand-in for Ray that runs each remote task at once, in this process."""
-
-    def __init__(self):
-        super().__init__("ray")
-        self.initialized, self.calls = False, []
-
-    def is_initialized(self):
-        return self.initialized
-
-    def init(self, **kwargs):
-        self.calls.append(("init", kwargs))
-        self.initialized = True
-
-    def shutdown(self):
-        self.calls.append(("shutdown", {}))
-        self.initialized = False
-
-    def remote(self, **options):
-        ray = self
-
-        class Remote:
-            def __init__(self, fn):
-                self.fn = fn
-
-            def remote(self, *args):
-                ray.calls.append(("task", options))
-                future = concurrent.futures.Future()
-                try:
-                    future.set_result(self.fn(*args))
-                except BaseException as exc:  # as a Ray task's error reaches its caller
-                    future.set_exception(exc)
-                return types.SimpleNamespace(future=lambda: future)
-        return Remote
-
-    def cancel(self, ref, force=False):
-        self.calls.append(("cancel", {"force": force}))
 
 
 def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smoke_runs, tmp_path, capsys):

@@ -12,23 +12,7 @@ import pytest
 
 from flows.config import load_config
 from flows.runtime import RAY_WORKER_ENV, needs_run_server, ray_session
-
-
-class FakeRay(types.ModuleType):
-    def __init__(self, initialized: bool = False):
-        super().__init__("ray")
-        self.initialized, self.calls = initialized, []
-
-    def is_initialized(self):
-        return self.initialized
-
-    def init(self, **kwargs):
-        self.calls.append(("init", kwargs))
-        self.initialized = True
-
-    def shutdown(self):
-        self.calls.append(("shutdown", {}))
-        self.initialized = False
+from tests.standins import FakeRay
 
 
 def _run(tmp_path, *sets):
