@@ -171,6 +171,9 @@ def pregrasp_markdown(rows: list[dict[str, Any]], source: str) -> str:
     if every:
         lines += ["Generated grasps are accepted as in the paper's protocol (generator.eval_filter: PN and contact "
                   "ratio); the 'all generated' columns are over every generated grasp."]
+    if timed:
+        lines += ["s / 256: wall time of sampling, IK and refinement of one batch of 256 grasps for the setting's "
+                  "first scene (the paper's Time; its figures are on an RTX 3090 Ti)."]
     return "\n".join(lines) + "\n"
 
 

@@ -261,6 +261,8 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
         elif settings is not None and settings != evaluation_key(cfg, name):
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; evaluated under other settings than this "
                                                         f"config's — run `{command}` again"))
+        elif (outdated := _outdated(name, data)) is not None:
+            rows.append(EvaluationStatus(name, "stale", f"profile {profile}; {outdated} — run `{command}` again"))
         elif settings is None:
             rows.append(EvaluationStatus(name, "unknown", f"profile {profile}; it records no config key (written "
                                                           f"before the fiftieth session) — run `{command}` again to be "
@@ -271,6 +273,15 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
                                              if partial else "")
             rows.append(EvaluationStatus(name, "current", detail, ablations=not partial))
     return [_with_lift_jobs(cfg, row) for row in rows]
+
+
+def _outdated(name: str, data: dict[str, Any]) -> str | None:
+    """Why a results file written by an older evaluation reports a figure that means something else now, or None."""
+    if name == "pregrasp_generated.json" and any(row.get("time_256_s") is not None and "time_batch" not in row
+                                                 for row in data.get("rows", [])):
+        return ("its time per 256 was scaled from smaller batches (before the fifty-second session), not timed on a "
+                "batch of 256")
+    return None
 
 
 #: Results files whose evaluation lifts in cached jobs (:mod:`tasks.lift_jobs`).

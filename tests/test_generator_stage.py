@@ -124,6 +124,8 @@ def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
         # the paper's protocol filter: n kept of the 2, Q1 / PN over the kept ones
         assert 0 <= row["n"] <= 2 and row["accept_rate"] == row["n"] / 2
         assert (row["q1"] is None) == (row["n"] == 0)
+        assert row["time_256_s"] > 0 and row["time_batch"] == 256  # one timed batch of 256 (the paper's "Time"), not time_s scaled from 2 grasps
+    assert rows["Gen-Pl"]["time_256_s"] is None  # no scene to time
     markdown = (workdir / "results" / "pregrasp_generated.md").read_text()
     assert "| Gen-Com |" in markdown and "0.25 / 2.65 / 8.45 / 12.83 s |" in markdown and "all generated" in markdown
     assert rows["Gen-Pl"]["paper"] == {"q1": 0.29, "pn_mm": 1.67, "div_deg": 9.24, "time_256_s": 12.28}

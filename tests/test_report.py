@@ -137,6 +137,14 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
     now["train-generator"] = tmp_path / "x"
     state, detail = next((r.state, r.detail) for r in evaluation_status(cfg) if r.name == "pregrasp_generated.json")
     assert state == "unknown" and "no config key" in detail
+    # an older evaluation's time per 256, scaled from smaller batches: stale, though made from the same outputs
+    row = {"setting": "Gen-Com", "time_256_s": 130.0}
+    for timed, expected in ((row, "stale"), ({**row, "time_batch": 256}, "current")):
+        (results / "pregrasp_generated.json").write_text(json.dumps(
+            {"rows": [timed], "profile": "smoke", "generator_manifest": "x/manifest.json",
+             "config_key": evaluation_key(cfg, "pregrasp_generated.json")}))
+        state, detail = next((r.state, r.detail) for r in evaluation_status(cfg) if r.name == "pregrasp_generated.json")
+        assert state == expected and (expected == "current" or "batch of 256" in detail)
     del now["train-generator"]
     (results / "pregrasp_generated.json").unlink()
     # `multigrasp status` hands over the stage outputs it has verified: the same answer without verifying again
