@@ -8,8 +8,8 @@ for the synthetic rows (``synthesis.metrics``).  ``time_s`` is the wall time of 
 of the setting's grasps (in batches of ``eval_grasps_per_scene``).  ``time_256_s`` is the paper's "Time": the wall
 time of sampling + IK + refinement of one batch of :data:`TIME_BATCH` (256) grasps for the setting's first scene,
 generated after its scenes (warm) and not scored.  Until the fifty-second session it was ``time_s`` scaled to 256
-grasps, which on a CPU overstated it many times over at the bench profile's batches of 16 (a step of sampling or
-refinement costs nearly the same for 16 grasps as for 256).
+grasps, which on a CPU overstated it at the bench profile's batches of 16 (~24 s for 16 batches of 16 against
+9.3 s for one of 256: a step of sampling or refinement costs nearly the same for 16 grasps as for 256).
 
 The paper's protocol discards generated pre-grasps "with significant penetration or insufficient contact ratio"
 (``generator.eval_filter``, :mod:`components.generation.filter`). A row's ``q1`` / ``pn_mm`` / ``div_deg`` are
