@@ -131,6 +131,29 @@ def test_evaluate_pregrasp_generated_writes_the_gen_rows(trained):
     assert rows["Gen-Pl"]["paper"] == {"q1": 0.29, "pn_mm": 1.67, "div_deg": 9.24, "time_256_s": 12.28}
 
 
+def test_the_timed_batch_is_the_settings_own_when_its_scenes_get_256_grasps(trained, monkeypatch):
+    """With eval_grasps_per_scene 256 the setting's batches are the paper's: time_256_s is their mean time, and no
+    extra batch is generated (Q1 is skipped here to keep the test short)."""
+    import flows.evaluate_generated as eg
+    from flows.config import load_config
+
+    workdir, base, _, _ = trained
+    config, sets = Path(base[base.index("--config") + 1]), base[base.index("--set") + 1::2]
+    cfg = load_config("smoke", config_file=config, workdir=workdir,
+                      sets=[*sets, "generator.eval_scenes=1", "generator.eval_grasps_per_scene=256"])
+    batches, generate, score = [], eg.generate_for_scene, eg.score_generated
+
+    def counted(*args, **kwargs):
+        batches.append(kwargs.get("n"))
+        return generate(*args, **kwargs)
+
+    monkeypatch.setattr(eg, "generate_for_scene", counted)
+    monkeypatch.setattr(eg, "score_generated", lambda *a, **k: score(*a, **{**k, "with_q1": False}))
+    (row,), _ = eg.generated_rows(cfg, settings=(("Gen-Com", "Com"),), progress=None)
+    assert batches == [None] and row["n_generated"] == 256  # the scene's own batch, no timed one beside it
+    assert row["time_batch"] == 256 and row["time_256_s"] == round(row["time_s"], 2)
+
+
 def test_generator_ablations_file_has_the_papers_rows(trained, monkeypatch):
     import flows.evaluate_generated as eg
 

@@ -5,8 +5,8 @@ The execution evaluations split their poses into lift jobs that worker processes
 gives the same outcome in any process, whatever that process lifted before.  The smoke runs' tests check the
 plumbing, but their pre-grasps lift nothing, so equal outcomes there are all failures.  Here the records are four
 bench Syn-Pl pair pre-grasps (``tests/data/bench_pl_pairs.json``, from the bench synthesis of the fifty-second
-session) that the scripted squeeze lifts in 6 of 8 trials here (1, 1, 2, 2 of 2): a successful lift is the outcome most sensitive to
-the contact solver's state.
+session) that the scripted squeeze lifts in 6 of 8 trials here (1, 1, 2, 2 of 2): a successful lift is the outcome
+most sensitive to the contact solver's state.
 """
 
 from __future__ import annotations
