@@ -73,8 +73,26 @@ def _cell(here: str, paper: str) -> str:
     return f"{here} ({paper})"
 
 
-def table_one(pregrasp: dict[str, dict], execution: dict[str, dict]) -> list[str]:
-    """Table I: pre-grasp quality and execution success per setting, this run (paper)."""
+#: Marks a success figure lifted from candidates other than accepted pre-grasps (:func:`plumbing_only`).
+PLUMBING_MARK = " †"
+
+
+def plumbing_only(data: dict[str, Any] | None) -> str | None:
+    """The ``records_source`` of an execution results file whose poses were not accepted pre-grasps (the smoke
+    profile lifts each scene's lowest-energy candidates, since its short synthesis accepts none), or None: such a
+    success rate checks the plumbing and is not a result."""
+    source = (data or {}).get("records_source")
+    return source if source not in (None, "accepted") else None
+
+
+def _plumbing_note(source: str) -> str:
+    return (f"†: lifted from each scene's candidates by `records_source = {source}` (the smoke profile's plumbing "
+            "check: its short synthesis accepts no pre-grasp), not from accepted pre-grasps — not a result.")
+
+
+def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: frozenset[str] = frozenset()) -> list[str]:
+    """Table I: pre-grasp quality and execution success per setting, this run (paper); the success of the settings
+    in ``marked`` carries :data:`PLUMBING_MARK`."""
     lines = ["| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) | s per 256 ↓ | succ ↑ | accepted / kept | n |",
              "|---|---|---|---|---|---|---|---|"]
     for setting, paper in PAPER_PREGRASP.items():
@@ -86,13 +104,20 @@ def table_one(pregrasp: dict[str, dict], execution: dict[str, dict]) -> list[str
             f"| {setting} | {_cell(_num(row.get('q1'), 3), _num(paper['q1'], 2))} | "
             f"{_cell(_num(row.get('pn_mm'), 2), _num(paper['pn_mm'], 2))} | "
             f"{_cell(_num(row.get('div_deg'), 2), _num(paper['div_deg'], 2))} | {_cell(time_here, time_paper)} | "
-            f"{_cell(_pct(succ_row.get('succ')), _pct(PAPER_EXECUTION.get(setting)))} | "
+            f"{_cell(_pct(succ_row.get('succ')) + _mark(setting in marked, succ_row.get('succ')), _pct(PAPER_EXECUTION.get(setting)))} | "
             f"{_pct(row.get('accept_rate'))} | {row.get('n', '–')} |")
     return lines
 
 
-def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: dict[str, Any]) -> list[str]:
-    """Table II: the generator's ablations (a) and the execution ablations (b, c), this run (paper)."""
+def _mark(marked: bool, value: Any) -> str:
+    return PLUMBING_MARK if marked and value is not None else ""
+
+
+def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: dict[str, Any],
+              marked: bool = False, syn_pl_marked: bool = False) -> list[str]:
+    """Table II: the generator's ablations (a) and the execution ablations (b, c), this run (paper).  ``marked``:
+    the execution ablations' poses were not accepted pre-grasps (``syn_pl_marked``: Table I's Syn-Pl row's, which
+    stands for Ours when the ablation file has no Ours row); their figures carry :data:`PLUMBING_MARK`."""
     lines = ["**(a) Generative model** (Gen-Pl, grasps kept by the protocol filter)", "",
              "| setting | Q1 ↑ | PN (mm) ↓ | kept | paper succ |", "|---|---|---|---|---|"]
     for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
@@ -103,13 +128,16 @@ def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: di
     lines += ["", "**(b, c) Execution** (this run: Syn-Pl pre-grasps; the paper's bases are in the last column)", "",
               "| setting | succ ↑ | paper's base |", "|---|---|---|"]
     ours = execution.get("Ours", syn_pl)
-    lines.append(f"| Ours | {_cell(_pct(ours.get('succ')), _pct(PAPER_EXECUTION['Syn-Pl']))} | Table I, Syn-Pl |")
+    ours_mark = _mark(marked if "Ours" in execution else syn_pl_marked, ours.get("succ"))
+    lines.append(f"| Ours | {_cell(_pct(ours.get('succ')) + ours_mark, _pct(PAPER_EXECUTION['Syn-Pl']))} | "
+                 "Table I, Syn-Pl |")
     for setting, paper in PAPER_EXECUTION_ABLATIONS.items():
         row = execution.get(setting, {})
-        lines.append(f"| {setting} | {_cell(_pct(row.get('succ')), _pct(paper['succ']))} | {paper['base']} |")
+        here = _pct(row.get("succ")) + _mark(marked, row.get("succ"))
+        lines.append(f"| {setting} | {_cell(here, _pct(paper['succ']))} | {paper['base']} |")
     for setting, row in execution.items():
         if setting not in PAPER_EXECUTION_ABLATIONS and setting != "Ours":
-            lines.append(f"| {setting} | {_pct(row.get('succ'))} | not in the paper |")
+            lines.append(f"| {setting} | {_pct(row.get('succ')) + _mark(marked, row.get('succ'))} | not in the paper |")
     return lines
 
 
@@ -136,47 +164,62 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
             lines.append(f"| {name} | – | not yet | `{SOURCES[name]}` |")
         else:
             lines.append(f"| {name} | {value.get('profile', '?')} | {value['_written']} | `{SOURCES[name]}` |")
-    lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(pregrasp, execution)
+    syn_source = plumbing_only(data["execution.json"])
+    ablation_source = plumbing_only(data["ablation_execution.json"])
+    marked = frozenset(_rows(data["execution.json"])) if syn_source else frozenset()
+    lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(pregrasp, execution, marked)
     lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
                   "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
                   "above 10 cm), 5 trials per pose; the Gen rows' are the same specialists lifting the generator's "
                   "kept pre-grasps, as the paper's."]
+    if syn_source:
+        lines += ["", _plumbing_note(syn_source)]
     lines += ["", "## Table II: ablations", ""] + table_two(_rows(data["ablation_generator.json"]), ablation_execution,
-                                                          execution.get("Syn-Pl", {}))
+                                                          execution.get("Syn-Pl", {}), marked=bool(ablation_source),
+                                                          syn_pl_marked=bool(syn_source))
+    if ablation_source or (syn_source and "Ours" not in ablation_execution):
+        lines += ["", _plumbing_note(ablation_source or syn_source)]
     markdown = "\n".join(lines) + "\n"
     path = atomic_write_text(results / "report.md", markdown)
     csv_path = atomic_write_text(results / "report.csv", report_csv(pregrasp, execution, ablation_execution,
-                                                                    _rows(data["ablation_generator.json"])))
+                                                                    _rows(data["ablation_generator.json"]),
+                                                                    marked, ablation_source, syn_source))
     return Report(path=path, markdown=markdown, missing=missing, csv_path=csv_path,
                   run_id=_log_report(workdir, path, csv_path, data, parent_run_id, experiment))
 
 
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
-               generator: dict[str, dict]) -> str:
-    """The report's figures as long-format CSV: ``table,setting,metric,here,paper`` (empty where not measured)."""
+               generator: dict[str, dict], marked: frozenset[str] = frozenset(), ablation_source: str | None = None,
+               syn_source: str | None = None) -> str:
+    """The report's figures as long-format CSV: ``table,setting,metric,here,paper,note`` (empty where not measured).
+    ``note`` names a success figure's ``records_source`` where its poses were not accepted pre-grasps (Table I's
+    settings in ``marked``; the execution ablations under ``ablation_source``; Ours from Table I under
+    ``syn_source``): a plumbing check, not a result."""
     import csv
     import io
 
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["table", "setting", "metric", "here", "paper"])
+    writer.writerow(["table", "setting", "metric", "here", "paper", "note"])
 
-    def put(table: str, setting: str, metric: str, here: Any, paper: Any) -> None:
-        writer.writerow([table, setting, metric, "" if here is None else here, "" if paper is None else paper])
+    def put(table: str, setting: str, metric: str, here: Any, paper: Any, source: str | None = None) -> None:
+        note = f"plumbing check (records_source={source}), not a result" if source and here is not None else ""
+        writer.writerow([table, setting, metric, "" if here is None else here, "" if paper is None else paper, note])
 
     for setting, paper in PAPER_PREGRASP.items():
         row = pregrasp.get(setting, {})
         for metric in ("q1", "pn_mm", "div_deg", "time_256_s", "accept_rate"):
             put("I", setting, metric, row.get(metric), paper.get(metric))
-        put("I", setting, "succ", execution.get(setting, {}).get("succ"), PAPER_EXECUTION.get(setting))
+        put("I", setting, "succ", execution.get(setting, {}).get("succ"), PAPER_EXECUTION.get(setting),
+            syn_source if setting in marked else None)
     for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
         row = generator.get(setting, {})
         for metric in ("q1", "pn_mm"):
             put("II(a)", setting, metric, row.get(metric), paper[metric])
     put("II(b,c)", "Ours", "succ", ablation_execution.get("Ours", execution.get("Syn-Pl", {})).get("succ"),
-        PAPER_EXECUTION["Syn-Pl"])
+        PAPER_EXECUTION["Syn-Pl"], ablation_source if "Ours" in ablation_execution else syn_source)
     for setting, paper in PAPER_EXECUTION_ABLATIONS.items():
-        put("II(b,c)", setting, "succ", ablation_execution.get(setting, {}).get("succ"), paper["succ"])
+        put("II(b,c)", setting, "succ", ablation_execution.get(setting, {}).get("succ"), paper["succ"], ablation_source)
     return out.getvalue()
 
 

@@ -77,6 +77,38 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
                                                                                        "results/report.md"]
 
 
+def test_success_lifted_from_unaccepted_candidates_is_marked_as_a_plumbing_check(tmp_path):
+    """The smoke profile lifts each scene's lowest-energy candidates (its synthesis accepts none): report.md marks
+    those success figures and says they are no result, report.csv notes them, and accepted pre-grasps' are unmarked."""
+    import csv
+
+    results = tmp_path / "results"
+    results.mkdir()
+    smoke = {"profile": "smoke", "records_source": "lowest_energy"}
+    (results / "execution.json").write_text(json.dumps({**smoke, "rows": [
+        {"setting": "Syn-Pl", "succ": 0.0, "n_poses": 20, "trials": 5}]}))
+    (results / "ablation_execution.json").write_text(json.dumps({**smoke, "rows": [
+        {"setting": "Ours", "succ": 0.0}, {"setting": "w/o RL", "succ": 0.0}, {"setting": "w/o Goal", "succ": None}]}))
+    _write(results, "execution_generated.json", [{"setting": "Gen-Pl", "succ": 0.1, "n_poses": 10, "trials": 5}])
+    report = write_report(tmp_path)
+    text = report.markdown
+    assert "| 0.0 % † (68.3 %) |" in text  # Table I, Syn-Pl
+    assert "| 10.0 % (40.2 %) |" in text  # Gen-Pl: kept generated pre-grasps, unmarked
+    assert "| Ours | 0.0 % † (68.3 %) |" in text and "| w/o RL | 0.0 % † (1.4 %) |" in text
+    assert "| w/o Goal | – (16.8 %) |" in text  # not measured: nothing to mark
+    assert text.count("`records_source = lowest_energy`") == 2 and "not a result" in text
+    rows = {(r["table"], r["setting"], r["metric"]): r for r in csv.DictReader(report.csv_path.open())}
+    assert "lowest_energy" in rows[("I", "Syn-Pl", "succ")]["note"]
+    assert "lowest_energy" in rows[("II(b,c)", "w/o RL", "succ")]["note"]
+    assert rows[("I", "Gen-Pl", "succ")]["note"] == "" and rows[("II(b,c)", "w/o Goal", "succ")]["note"] == ""
+    # accepted pre-grasps (the bench profile): no mark, no note
+    (results / "execution.json").write_text(json.dumps({"profile": "bench", "records_source": "accepted", "rows": [
+        {"setting": "Syn-Pl", "succ": 0.346, "n_poses": 100, "trials": 5}]}))
+    (results / "ablation_execution.json").unlink()
+    text = write_report(tmp_path).markdown
+    assert "| 34.6 % (68.3 %) |" in text and "†" not in text
+
+
 def test_report_errors_are_one_line(tmp_path, capsys):
     assert main(["report", "--workdir", str(tmp_path / "nowhere")]) == 2
     assert "no results in" in capsys.readouterr().err
