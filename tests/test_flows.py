@@ -1,9 +1,10 @@
-"""End-to-end flow tests under the smoke profile: caching, resume, MLflow, status, CLI errors."""
+"""End-to-end flow tests under the smoke profile: one smoke run shared by the tests that read it (caching, the
+evaluations, MLflow, the UI), status, CLI errors.  Fresh-work-dir flows (resume, moves, signals) are in
+``test_resume.py``."""
 
 from __future__ import annotations
 
 import os
-import re
 import sys
 import types
 from pathlib import Path
@@ -14,7 +15,6 @@ import tasks.scenes
 from flows.cli import main
 from flows.config import load_config
 from flows.pipeline import status
-from tasks.artifacts import read_manifest
 from tasks.units import executions
 from tests.standins import FakeRay
 
@@ -25,7 +25,8 @@ SMALL = ["scenes.pairs=false", "scenes.many=false", "scenes.jobs_per_shard=4", "
          "scenes.per_combination={train: 1, Pl: 0, Com: 0, Geo: 0, many: 0}"]
 
 
-def _run(workdir, *extra: str) -> int:
+def run_smoke(workdir, *extra: str) -> int:
+    """``multigrasp run --profile smoke`` in ``workdir`` with each of ``extra`` as a ``--set`` item."""
     argv = ["run", "--profile", "smoke", "--workdir", str(workdir)]
     for item in extra:
         argv += ["--set", item]
@@ -36,9 +37,9 @@ def _run(workdir, *extra: str) -> int:
 def smoke_runs(tmp_path_factory):
     """The smoke pipeline run twice in one work dir (second run must be all cache)."""
     workdir = tmp_path_factory.mktemp("smoke")
-    assert _run(workdir) == 0
+    assert run_smoke(workdir) == 0
     first = executions(workdir)
-    assert _run(workdir) == 0
+    assert run_smoke(workdir) == 0
     return workdir, first, executions(workdir)
 
 
@@ -223,15 +224,6 @@ def test_run_evaluate_needs_every_stage(tmp_path, capsys):
     assert not (tmp_path / "stages").exists()
 
 
-def test_smoke_run_prints_its_wall_time(tmp_path, capsys):
-    assert _run(tmp_path, *SMALL) == 0
-    assert _run(tmp_path, *SMALL) == 0
-    err = capsys.readouterr().err
-    assert len(re.findall(r"done in [0-9.]+s wall time", err)) == 2
-    assert "every stage served from cache" in err
-    assert "multigrasp ui --workdir" in err
-
-
 def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs):
     from mlflow.tracking import MlflowClient
 
@@ -261,109 +253,6 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     cached = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == second_parent.info.run_id]
     assert cached and all(r.data.tags["cached"] == "true" for r in cached)
     assert all(r.data.tags["cached_from_run"] in {c.info.run_id for c in children} for r in cached)
-
-
-def test_a_user_mesh_edited_in_place_is_computed_again_and_an_untouched_one_is_served(tmp_path):
-    """The stage keys held the mesh's path, not its contents: a mesh fixed and re-exported under the same name was
-    served from the cache with the old geometry."""
-    import trimesh
-
-    mesh = tmp_path / "block.obj"
-    trimesh.creation.box(extents=(0.04, 0.03, 0.025)).export(mesh)
-    config = tmp_path / "my.yaml"
-    config.write_text(f"objects:\n  user:\n    - {{name: block, mesh: {mesh}}}\n  ood: [block]\n")
-    workdir = tmp_path / "runs"
-    argv = ["run", "--profile", "smoke", "--workdir", str(workdir), "--config", str(config), "--until", "scenes"]
-    for item in SMALL:
-        argv += ["--set", item]
-    assert main(argv) == 0
-    first = executions(workdir)
-    assert main(argv) == 0 and executions(workdir) == first  # untouched: served from cache
-    trimesh.creation.box(extents=(0.05, 0.03, 0.025)).export(mesh)  # edited in place, same path
-    assert main(argv) == 0
-    again = executions(workdir)[len(first):]
-    assert again and all(label.startswith("scenes/") for label in again)
-
-
-def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_once(tmp_path):
-    """A second terminal running the same command: the second crashed in MLflow's schema migration of the new
-    store ("duplicate column name"), and both would have computed every unit.  Now the store is created under a
-    lock, each unit under its own, and the two share the work."""
-    import subprocess
-    import sys
-
-    workdir = tmp_path / "runs"
-    argv = [sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir", str(workdir)]
-    for item in SMALL:
-        argv += ["--set", item]
-    procs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
-    outputs = [p.communicate(timeout=600)[0] for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], outputs
-    done = executions(workdir)
-    assert done and len(done) == len(set(done))  # no unit computed twice
-    assert "Traceback" not in "".join(outputs)
-
-
-def test_resume_after_downstream_failure_reuses_upstream_units(tmp_path, monkeypatch):
-    real = tasks.scenes.merge_and_render
-
-    def crash(*args, **kwargs):
-        raise RuntimeError("simulated crash in the merge unit")
-
-    monkeypatch.setattr(tasks.scenes, "merge_and_render", crash)
-    with pytest.raises(RuntimeError, match="simulated crash"):
-        _run(tmp_path, *SMALL)
-    first = executions(tmp_path)
-    assert sorted(first) == ["scenes/merge", "scenes/shard-000", "scenes/shard-001"]
-
-    monkeypatch.setattr(tasks.scenes, "merge_and_render", real)
-    assert _run(tmp_path, *SMALL) == 0
-    # only the failed unit ran again: the shards were served from the cache (then the downstream stages ran)
-    assert [e for e in executions(tmp_path)[len(first):] if e.startswith("scenes/")] == ["scenes/merge"]
-
-
-def test_deleted_artifact_is_recomputed_not_trusted(tmp_path):
-    assert _run(tmp_path, *SMALL) == 0
-    cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
-    shard = next(p for p in (tmp_path / "stages" / "scenes").iterdir() if read_manifest(p).unit == "shard-000")
-    (shard / "scenes.json").unlink()
-    states = {r.name: r.state for r in status(cfg)}
-    assert states["scenes"] == "corrupt" and states["synthesize"] == "blocked" and states["specialists"] == "blocked"
-    before = len(executions(tmp_path))
-    assert _run(tmp_path, *SMALL) == 0
-    assert executions(tmp_path)[before:] == ["scenes/shard-000"]
-    assert (shard / "scenes.json").is_file()
-    assert all(r.state == "done" for r in status(cfg))
-
-
-def test_a_moved_work_dir_is_served_from_its_cache_and_records_its_new_place(tmp_path):
-    import shutil
-
-    from tasks.artifacts import recorded_folder
-
-    assert _run(tmp_path / "cluster", *SMALL) == 0
-    done = executions(tmp_path / "cluster")
-    shutil.move(tmp_path / "cluster", tmp_path / "laptop")  # the old place is gone: nothing may be read from it
-    workdir = tmp_path / "laptop"
-    assert _run(workdir, *SMALL) == 0
-    assert executions(workdir) == done, "a moved work dir recomputed finished units"
-    cfg = load_config("smoke", sets=SMALL, workdir=workdir)
-    assert all(r.state == "done" for r in status(cfg))
-    units = [p for stage in (workdir / "stages").iterdir() for p in stage.iterdir() if read_manifest(p) is not None]
-    assert units and all(recorded_folder(p) == str(p) for p in units)  # manifests now name the new folders
-    # MLflow: every run, the first invocation's too, keeps its artifacts under the moved work dir
-    from mlflow.tracking import MlflowClient
-
-    from tasks.tracking import artifact_root, default_tracking_uri
-
-    client = MlflowClient(default_tracking_uri(workdir))
-    experiment = client.get_experiment_by_name(cfg.tracking.experiment)
-    assert experiment.artifact_location == artifact_root(workdir)
-    runs = client.search_runs([experiment.experiment_id])
-    assert len(runs) >= 4 and all(r.info.artifact_uri.startswith(artifact_root(workdir) + "/") for r in runs)
-    first = min((r for r in runs if r.data.tags.get("stage") == "scenes"), key=lambda r: r.info.start_time)
-    assert client.list_artifacts(first.info.run_id), "the first run's artifacts are not found after the move"
-    assert not (tmp_path / "cluster").exists()
 
 
 def test_status_lists_missing_then_done(tmp_path, capsys):
@@ -420,7 +309,7 @@ def test_user_error_inside_a_unit_is_one_line_without_traceback(tmp_path, capsys
         raise MultigraspError("could not place cube, sphere without overlap in 2000 tries — enlarge xy_half_range_m")
 
     monkeypatch.setattr(tasks.scenes, "sample_shard", impossible)
-    assert _run(tmp_path, *SMALL) == 2
+    assert run_smoke(tmp_path, *SMALL) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1].startswith("error: could not place cube, sphere")
@@ -526,100 +415,3 @@ def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_r
     assert keep(record("prefect.server.api", RuntimeError("real failure")))
     assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
 
-
-def test_process_runner_uses_only_the_runs_prefect_server_and_resumes_from_cache(tmp_path):
-    """`--runner processes`: every Prefect client of the run talks to the one local server the run starts.  Prefect's
-    process-pool message forwarder and its event-loop thread used to start a temporary server each (they read the
-    settings Prefect built at import), and the queued events were sent after the run's server had stopped.  With
-    temporary servers forbidden (PREFECT_SERVER_ALLOW_EPHEMERAL_MODE=false) any such attempt logs an ERROR."""
-    import subprocess
-    import sys
-
-    argv = [sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir", str(tmp_path), "--until",
-            "scenes", "--runner", "processes"] + [a for item in SMALL for a in ("--set", item)]
-    env = {**os.environ, "PREFECT_SERVER_ALLOW_EPHEMERAL_MODE": "false"}
-    env.pop("PREFECT_API_URL", None)
-    outputs = [subprocess.run(argv, capture_output=True, text=True, timeout=300, env=env) for _ in range(2)]
-    for done in outputs:
-        out = done.stdout + done.stderr
-        assert done.returncode == 0, out
-        for bad in ("Traceback", "ERROR", "failed", "Still processing items", "temporary server"):
-            assert bad not in out, out
-    assert "0 served from cache" in outputs[0].stderr and "every stage served from cache" in outputs[1].stderr
-    assert (tmp_path / "prefect-server.log").is_file()  # the run's own server
-
-
-@pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads child processes from /proc")
-def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path):
-    """`kill PID` (or a cluster scheduler's SIGTERM) was swallowed inside a flow, or ended the CLI at once and left
-    Prefect's temporary API server running; it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED (130), the
-    resume hint, and the helper processes it started are gone."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    from flows.cli import EXIT_INTERRUPTED, _child_pids
-
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir",
-                             str(tmp_path / "run")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        seen = []
-        for line in proc.stdout:  # the first stage has started: Prefect and MLflow are up
-            seen.append(line)
-            if line.startswith("stage scenes"):
-                break
-        deadline = time.monotonic() + 60
-        while not _child_pids(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        helpers = _child_pids(proc.pid)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            rest, _ = proc.communicate(timeout=180)
-        except subprocess.TimeoutExpired:  # say what the run printed after the signal, not only that it timed out
-            proc.kill()
-            rest, _ = proc.communicate()
-            pytest.fail("the run did not stop within 180 s of SIGTERM; its output:\n" + "".join(seen) + rest)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    out = "".join(seen) + rest
-    assert proc.returncode == EXIT_INTERRUPTED, out
-    assert "interrupted — finished units are kept" in out
-    assert "INFO mlflow" not in out  # a fresh work dir's store creation is not chatter on the console
-    time.sleep(2)
-    alive = [pid for pid in helpers if os.path.exists(f"/proc/{pid}")
-             and "Z" not in open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]]
-    assert not alive, f"helper processes left running: {helpers}"
-
-
-def test_a_second_interrupt_stops_at_once_and_terminates_the_children():
-    """A unit running in a worker thread cannot be interrupted, so the first Ctrl-C / SIGTERM unwinds the main
-    thread (KeyboardInterrupt) and the second one terminates the child processes and exits 130 at once."""
-    import io
-    import signal
-
-    from flows.cli import EXIT_INTERRUPTED, Interrupts
-
-    exits, stream = [], io.StringIO()
-    stopper = Interrupts(exit=exits.append, children=lambda: [2 ** 22 + 12345], stream=stream)  # no such pid
-    with pytest.raises(KeyboardInterrupt):
-        stopper.handle(signal.SIGTERM, None)
-    assert exits == [] and "press Ctrl-C again" in stream.getvalue()
-    stopper.handle(signal.SIGINT, None)  # the unknown child pid is skipped quietly
-    assert exits == [EXIT_INTERRUPTED] and "finished units are kept" in stream.getvalue()
-
-
-def test_child_pids_finds_a_child_process():
-    import subprocess
-    import sys
-
-    from flows.cli import _child_pids
-
-    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
-    try:
-        assert child.pid in _child_pids()
-    finally:
-        child.kill()
-        child.wait()
