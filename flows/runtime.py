@@ -37,6 +37,53 @@ def prefect_defaults() -> None:
         os.environ.setdefault(name, value)
 
 
+def _local_prefect_database() -> Path | None:
+    """The SQLite file of Prefect's local database (``$PREFECT_HOME/prefect.db`` by default), or None where this
+    invocation will use a server of the user's (``PREFECT_API_URL``) or a database that is not SQLite."""
+    if os.environ.get("PREFECT_API_URL"):
+        return None
+    from prefect.settings import get_current_settings
+    from sqlalchemy.engine import make_url
+
+    url = make_url(get_current_settings().server.database.connection_url.get_secret_value())
+    if not url.drivername.startswith("sqlite") or not url.database or url.database == ":memory:":
+        return None
+    return Path(url.database).expanduser()
+
+
+def prepare_prefect_database(workdir: Path) -> None:
+    """Let one Prefect server set up Prefect's local database, under a lock, before this invocation starts its own.
+
+    Every Prefect server migrates its database and registers Prefect's block types in it as it starts.  Two
+    invocations starting at once on a fresh ``PREFECT_HOME`` (two terminals on a new machine, or ``make test``'s
+    two workers in a fresh CI clone) did both on the same SQLite file together: alembic's "Online migration expected
+    to match one row" or "UNIQUE constraint failed: block_schema" tracebacks on the console, and with ``--runner
+    processes`` "could not start a local Prefect server".  The first invocation now starts and stops one server
+    (``local_prefect_server``, ~15 s once) while the others wait on the lock; a stamp beside the database, named after
+    the Prefect version, lets later invocations skip this.  Prefect itself skips both steps on a set-up database."""
+    import prefect
+
+    from tasks.artifacts import file_lock
+
+    database = _local_prefect_database()
+    if database is None:
+        return
+    stamp = database.parent / f".multigrasp-prepared-{prefect.__version__}"
+    if stamp.is_file() and database.is_file():
+        return
+    with file_lock(database.parent / ".multigrasp-prepare.lock"):
+        if stamp.is_file() and database.is_file():  # another invocation prepared it while this one waited
+            return
+        log.info("preparing Prefect's local database %s (once per Prefect version)", database)
+        try:
+            with local_prefect_server(workdir):  # up once it has migrated the database and registered the blocks
+                pass
+        except MultigraspError as exc:  # the run's own server will try itself, as it did before this step
+            log.warning("could not prepare Prefect's database %s: %s", database, exc)
+            return
+        stamp.write_text(f"set up by a Prefect {prefect.__version__} server started by multigrasp\n")
+
+
 def make_task_runner(run: RunConfig):
     """The configured Prefect task runner for fan-out."""
     from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
@@ -149,6 +196,7 @@ def prefect_context(cfg: PipelineConfig) -> Iterator[None]:
                                   PREFECT_RESULTS_PERSIST_BY_DEFAULT, temporary_settings)
 
     workdir = cfg.run.workdir
+    prepare_prefect_database(workdir)
     records = records_dir(workdir)
     records.mkdir(parents=True, exist_ok=True)
     updates = {PREFECT_LOCAL_STORAGE_PATH: str(records), PREFECT_RESULTS_PERSIST_BY_DEFAULT: True}

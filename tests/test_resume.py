@@ -57,7 +57,10 @@ def test_a_user_mesh_edited_in_place_is_computed_again_and_an_untouched_one_is_s
 def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_once(tmp_path):
     """A second terminal running the same command: the second crashed in MLflow's schema migration of the new
     store ("duplicate column name"), and both would have computed every unit.  Now the store is created under a
-    lock, each unit under its own, and the two share the work."""
+    lock, each unit under its own, and the two share the work.  On a fresh PREFECT_HOME the two Prefect servers
+    also migrated the new database together, and one of them failed with an alembic traceback on the console (a
+    third of the runs), or registered Prefect's block types together (a UNIQUE constraint traceback); the first
+    invocation now lets one server set the database up under a lock (``flows.runtime.prepare_prefect_database``)."""
     import subprocess
     import sys
 
@@ -65,7 +68,10 @@ def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_onc
     argv = [sys.executable, "-m", "flows.cli", "run", "--profile", "smoke", "--workdir", str(workdir)]
     for item in SMALL:
         argv += ["--set", item]
-    procs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    # a fresh PREFECT_HOME, as on a new machine: both servers migrated the new database at once (below)
+    env = {**os.environ, "PREFECT_HOME": str(tmp_path / "prefect-home")}
+    procs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+             for _ in range(2)]
     outputs = [p.communicate(timeout=600)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outputs
     done = executions(workdir)
@@ -231,3 +237,34 @@ def test_child_pids_finds_a_child_process():
     finally:
         child.kill()
         child.wait()
+
+
+def test_prefect_database_is_prepared_once_under_a_lock_and_then_skipped(tmp_path, monkeypatch):
+    import subprocess
+
+    import flows.runtime
+
+    monkeypatch.setenv("PREFECT_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("PREFECT_API_URL", raising=False)
+    monkeypatch.delenv("PREFECT_API_DATABASE_CONNECTION_URL", raising=False)
+    from prefect.context import refresh_global_settings_context
+
+    refresh_global_settings_context()
+    try:
+        database = flows.runtime._local_prefect_database()
+        assert database == tmp_path / "home" / "prefect.db" and not database.exists()
+        flows.runtime.prepare_prefect_database(tmp_path)
+        assert database.is_file() and list(database.parent.glob(".multigrasp-prepared-*"))
+        memo = database.parent / "memo_store.toml"  # Prefect's record that the block types are registered
+        assert "block_auto_registration" in memo.read_text()
+
+        def no_second_server(*args, **kwargs):
+            raise AssertionError("a second server was started for a prepared database")
+
+        monkeypatch.setattr(subprocess, "Popen", no_second_server)
+        flows.runtime.prepare_prefect_database(tmp_path)
+        monkeypatch.setenv("PREFECT_API_URL", "http://127.0.0.1:4242/api")  # a server of the user's: not ours to touch
+        assert flows.runtime._local_prefect_database() is None
+    finally:
+        monkeypatch.undo()
+        refresh_global_settings_context()
