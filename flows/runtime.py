@@ -71,10 +71,12 @@ def prepare_prefect_database(workdir: Path) -> None:
     stamp = database.parent / f".multigrasp-prepared-{prefect.__version__}"
     if stamp.is_file() and database.is_file():
         return
-    with file_lock(database.parent / ".multigrasp-prepare.lock"):
+    console = make_console()
+    with file_lock(database.parent / ".multigrasp-prepare.lock",
+                   on_wait=lambda holder: console.print(f"waiting for {holder} to set up Prefect's database")):
         if stamp.is_file() and database.is_file():  # another invocation prepared it while this one waited
             return
-        log.info("preparing Prefect's local database %s (once per Prefect version)", database)
+        console.print(f"setting up Prefect's local database {database} (once per Prefect version, ~15 s)")
         try:
             with local_prefect_server(workdir):  # up once it has migrated the database and registered the blocks
                 pass
