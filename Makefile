@@ -10,7 +10,7 @@ WORKDIR ?= runs
 PIP_QUIET ?= -q
 # `make test` runs the suite in this many pytest-xdist worker processes, a test file per worker at a time
 # (--dist loadfile: a module's shared fixtures, such as test_flows.py's smoke run, are built once). 2 suits
-# 2 cores (fifty-fifth session: 10 min 38 s against 15 min 58 s in one process); TEST_WORKERS=0 runs in one.
+# 2 cores (fifty-fifth session, fresh clone: 10 min 16 s against 15 min 58 s in one process); TEST_WORKERS=0 runs in one.
 TEST_WORKERS ?= 2
 PYTEST_WORKERS := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 
