@@ -499,11 +499,12 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _cmd_generate(args: argparse.Namespace) -> int:
     from flows.generate import generate
+    from flows.runtime import make_console
 
     cfg = _load(args)
-    with _using(cfg):
+    with _using(cfg):  # progress lines carry rich markup: the stderr console of the other commands renders it
         report = generate(cfg, args.objects, args.n, args.palm_direction, args.placement, args.seed, lift=args.lift,
-                          say=lambda line: print(line, file=sys.stderr, flush=True))
+                          say=make_console().print)
     print(f"{report.n} grasp(s) in {report.folder}  (sampling + IK {report.seconds['sample_and_ik_s']} s, refinement "
           f"{report.seconds['refine_s']} s; mean penetration {report.depth_before_mm:.2f} -> {report.depth_after_mm:.2f} mm; "
           + (f"{report.kept} kept by the protocol filter)" if cfg.generator.eval_filter.enabled else
@@ -531,10 +532,14 @@ def main(argv: list[str] | None = None) -> int:
     else:  # before MLflow is imported: it sets its loggers' level from this once (its default, INFO, printed
         # "Creating initial MLflow database tables..." lines into every first run of a work dir)
         os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
+        # torchrl's own handler prints INFO lines ("Initialized LazyTensorStorage ...") into every PPO training; its
+        # level is read from this at import, also in worker processes
+        os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
     logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
+        logging.getLogger("torchrl").setLevel(logging.WARNING)  # where torchrl was imported before main()
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui, "prune": _cmd_prune,
                 "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,

@@ -191,7 +191,8 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
                  "specialists.eval_trials=1", "specialists.gifs_per_outcome=1", "generator.eval_filter.enabled=false"):
         argv += ["--set", item]
     assert main(argv) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "evaluate execution lift cube+mug" in err and "[/]" not in err  # progress rendered, not raw rich markup
     folder = workdir / "results" / "generated" / "cube+mug-1"
     lift = json.loads((folder / "lift.json").read_text())
     assert lift["generated"] == lift["kept"] == 3  # the filter open: every grasp kept, eval_poses of them lifted

@@ -77,6 +77,8 @@ def test_two_invocations_on_a_new_work_dir_both_finish_and_compute_each_unit_onc
     done = executions(workdir)
     assert done and len(done) == len(set(done))  # no unit computed twice
     assert "Traceback" not in "".join(outputs)
+    # no library's INFO chatter on the console: torchrl printed "Initialized LazyTensorStorage ..." in every training
+    assert "[torchrl]" not in "".join(outputs) and "LazyTensorStorage" not in "".join(outputs)
 
 
 def test_resume_after_downstream_failure_reuses_upstream_units(tmp_path, monkeypatch):
