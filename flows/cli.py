@@ -403,6 +403,10 @@ def _cmd_stages(_: argparse.Namespace) -> int:
     return 0
 
 
+#: a ``PYTHONWARNINGS`` entry for the MLflow server of ``multigrasp ui`` (see :func:`_cmd_ui`)
+UI_QUIET_WARNING = "ignore:starlette.middleware.wsgi is deprecated"
+
+
 def _cmd_ui(args: argparse.Namespace) -> int:
     from tasks.tracking import artifact_root, default_tracking_uri, relocate_embedded_store
 
@@ -420,8 +424,11 @@ def _cmd_ui(args: argparse.Namespace) -> int:
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", default_tracking_uri(workdir),
            "--default-artifact-root", artifact_root(workdir), "--host", UI_HOST, "--port", str(args.port)]
     print(f"MLflow UI on http://{UI_HOST}:{args.port} (Ctrl-C to stop)", flush=True)
+    # MLflow's server imports a Starlette module that warns of its own deprecation, once per server process (three
+    # copies of two lines on every start): not the user's to act on
+    quiet = ",".join(filter(None, [os.environ.get("PYTHONWARNINGS"), UI_QUIET_WARNING]))
     try:
-        return subprocess.call(cmd)
+        return subprocess.call(cmd, env={**os.environ, "PYTHONWARNINGS": quiet})
     except KeyboardInterrupt:
         return 0
 

@@ -369,6 +369,8 @@ def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
 
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=30)
+    out = proc.stdout.read().decode()
+    assert "MLflow UI on" in out and "DeprecationWarning" not in out, out  # Starlette's, per server process: held back
 
 
 def test_ui_without_a_store_says_what_to_run(tmp_path, capsys):
