@@ -73,7 +73,7 @@ def _config_args(parser: argparse.ArgumentParser) -> None:
                        "spawned processes, or to Ray tasks with ray")
     group.add_argument("--max-workers", type=int,
                        help="parallel workers of the task runner, and the evaluations' lift processes")
-    group.add_argument("-v", "--verbose", action="store_true", help="log cache decisions and Prefect messages")
+    group.add_argument("-v", "--verbose", action="store_true", help="log cache decisions, Prefect's messages and the INFO lines of MLflow and torchrl")
 
 
 def _load(args: argparse.Namespace, needs_device: bool = True):
