@@ -348,10 +348,16 @@ def _cmd_status(args: argparse.Namespace) -> int:
             results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
         console.print(results)
         if any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES):
-            options = [f"--profile {cfg.profile}"] + ([f"--config {args.config}"] if args.config else [])
-            options += [f"--set {item}" for item in args.sets] + [f"--workdir {cfg.run.workdir}"]
-            console.print(f"`multigrasp run --evaluate {' '.join(options)}` computes the Table I evaluations that are "
-                          "not current, then the report")
+            import shlex
+
+            from rich.markup import escape
+
+            # a command to paste into a shell: each value quoted where it needs it (`--set objects.user=[{name: mug,
+            # ...}]` holds spaces), and escaped for rich, which took `[mug]` of `--set objects.ood=[mug]` for a tag
+            options = ["--profile", cfg.profile] + (["--config", str(args.config)] if args.config else [])
+            options += [word for item in args.sets for word in ("--set", item)] + ["--workdir", str(cfg.run.workdir)]
+            command = shlex.join(["multigrasp", "run", "--evaluate", *options])
+            console.print(f"`{escape(command)}` computes the Table I evaluations that are not current, then the report")
     return 0
 
 

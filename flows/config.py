@@ -22,6 +22,7 @@ from __future__ import annotations
 import difflib
 import functools
 import logging
+import typing
 from pathlib import Path
 from typing import Any, Literal
 
@@ -194,13 +195,29 @@ def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
 
 
 def _known_keys(model: type[Section], prefix: str = "") -> list[str]:
+    """Every dotted key of ``model``; the fields of a list's sections (``objects.user``'s meshes) under ``*`` for the
+    item's index, as ``objects.user.*.scale``."""
     keys = []
     for name, info in model.model_fields.items():
         keys.append(prefix + name)
         ann = info.annotation
         if isinstance(ann, type) and issubclass(ann, Section):
             keys.extend(_known_keys(ann, prefix + name + "."))
+        elif typing.get_origin(ann) is list:
+            item, = typing.get_args(ann) or (None,)
+            if isinstance(item, type) and issubclass(item, Section):
+                keys.extend(_known_keys(item, prefix + name + ".*."))
     return keys
+
+
+def _closest_key(loc: tuple) -> str | None:
+    """The known key nearest an unknown one, with the unknown key's list indices in place of ``*``."""
+    pattern = ".".join("*" if isinstance(part, int) else str(part) for part in loc)
+    close = difflib.get_close_matches(pattern, _known_keys(PipelineConfig), n=1)
+    if not close:
+        return None
+    indices = iter(str(part) for part in loc if isinstance(part, int))
+    return ".".join(next(indices, "0") if part == "*" else part for part in close[0].split("."))
 
 
 def parse_set(item: str) -> tuple[list[str], Any]:
@@ -228,8 +245,8 @@ def _assign(tree: dict[str, Any], path: list[str], value: Any) -> dict[str, Any]
 def _describe(error: dict[str, Any]) -> str:
     loc = ".".join(str(p) for p in error["loc"])
     if error["type"] == "extra_forbidden":
-        close = difflib.get_close_matches(loc, _known_keys(PipelineConfig), n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        close = _closest_key(tuple(error["loc"]))
+        hint = f" (did you mean '{close}'?)" if close else ""
         return f"unknown config key '{loc}'{hint} — see `multigrasp run --help` and configs/*.yaml for valid keys"
     value = error.get("input")
     shown = repr(value) if not isinstance(value, dict) else "a mapping"

@@ -59,6 +59,13 @@ def test_unknown_config_key_names_the_key_and_suggests_a_fix():
     assert "unknown config key 'scenes.render'" in message and "scenes.renders" in message
 
 
+def test_a_misspelt_field_of_a_user_mesh_is_suggested_with_its_index():
+    """A typo inside a list item (a user mesh's ``scael``) was answered with the list (``objects.user``)."""
+    meshes = "[{name: a, mesh: a.obj}, {name: b, mesh: b.obj, scael: 0.8}]"
+    message = _one_line_error(profile="smoke", sets=[f"objects.user={meshes}"])
+    assert "unknown config key 'objects.user.1.scael' (did you mean 'objects.user.1.scale'?)" in message
+
+
 def test_out_of_range_value_names_the_key():
     message = _one_line_error(profile="smoke", sets=["scenes.renders=-1"])
     assert "scenes.renders" in message and "greater than or equal to 0" in message
