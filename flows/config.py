@@ -250,7 +250,9 @@ def _describe(error: dict[str, Any]) -> str:
         return f"unknown config key '{loc}'{hint} — see `multigrasp run --help` and configs/*.yaml for valid keys"
     value = error.get("input")
     shown = repr(value) if not isinstance(value, dict) else "a mapping"
-    return f"bad value for '{loc}': {error['msg']} (got {shown[:80]})"
+    message = error["msg"].removeprefix("Value error, ")  # a validator's own message: pydantic's prefix is noise
+    got = "" if shown in message else f" (got {shown[:80]})"
+    return f"bad value for '{loc}': {message}{got}"
 
 
 def build_config(tree: dict[str, Any]) -> PipelineConfig:

@@ -307,3 +307,25 @@ def test_the_bench_specialists_train_pair_bins_only_as_the_evaluation_lifts_pair
                   "scene_id": ["s1", "s2", "s3"], "row": [0, 0, 0], "accepted": [True] * 3}).to_parquet(table.file)
     assert list(grasp_rows(table, "accepted", 1, ["train"], 2, 2)["scene_id"]) == ["s2"]
     assert list(grasp_rows(table, "accepted", 1, ["train"], 2)["scene_id"]) == ["s1", "s2"]
+
+
+@pytest.mark.parametrize("name", ["my/mug", "cube+mug", "mug:2", "mug,cup", "..", ""])
+def test_an_object_name_that_would_break_folders_or_combinations_is_one_line_naming_the_rule(name):
+    """A name names cache files and folders and is joined with '+' (combinations), ':' (scene ids) and ','
+    (`generate --objects`): 'my/mug' wrote its cache into a subfolder and would have split a combination."""
+    message = _one_line_error(profile="smoke", sets=[f"objects.user=[{{name: '{name}', mesh: mug.obj}}]"])
+    assert "objects.user.0.name" in message
+    assert name == "" or ("letters, digits, '_', '-' and '.'" in message and "rename it" in message)
+
+
+def test_a_library_file_with_an_unsafe_object_name_is_one_line(tmp_path):
+    from components.objects.config import check_object_name
+    from components.objects.library import read_library_file
+
+    library = tmp_path / "library.yaml"
+    library.write_text("version: 1\nobjects:\n  'big+block':\n    role: train\n"
+                       "    shape: {type: box, size_m: [0.03, 0.03, 0.03]}\n")
+    with pytest.raises(MultigraspError) as info:
+        read_library_file(library)
+    assert "big+block" in str(info.value) and "rename it, e.g. 'big_block'" in str(info.value)
+    assert check_object_name("mug_v2.1") == "mug_v2.1"  # dots, digits, '_' and '-' stay allowed
