@@ -550,6 +550,9 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
     logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    from flows.library_logs import quiet_handled_warnings
+
+    quiet_handled_warnings()
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # where torchrl was imported before main()

@@ -22,6 +22,7 @@ from __future__ import annotations
 import difflib
 import functools
 import logging
+import re
 import typing
 from pathlib import Path
 from typing import Any, Literal
@@ -255,10 +256,48 @@ def _describe(error: dict[str, Any]) -> str:
     return f"bad value for '{loc}': {message}{got}"
 
 
+#: What an object's name may hold: it names cache files and stage folders, joins a combination's names with '+'
+#: ("cube+mug"), sits between ':' in scene ids ("Pl:cube+mug:0") and between ',' in `generate --objects`.  Checked
+#: here, where a config is loaded, not in ``components/objects``: a check there would change every stage's code
+#: version, and so the cache key of every finished stage, for no change in what a valid config computes.
+OBJECT_NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
+def object_name_problem(name: str) -> str | None:
+    """What is wrong with an object's name, with a fix, or None for a name of :data:`OBJECT_NAME_PATTERN`."""
+    if OBJECT_NAME_PATTERN.fullmatch(name):
+        return None
+    fixed = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_.-") or "my_object"
+    return (f"object name {name!r} may hold only letters, digits, '_', '-' and '.', first a letter or digit (it "
+            f"names folders and joins combinations); rename it, e.g. {fixed!r}")
+
+
+def _check_object_names(cfg: PipelineConfig) -> None:
+    """The names of the user's meshes and of a custom library file's objects (:func:`object_name_problem`)."""
+    for index, user in enumerate(cfg.objects.user):
+        problem = object_name_problem(user.name)
+        if problem:
+            raise MultigraspError(f"bad value for 'objects.user.{index}.name': {problem}")
+    library = cfg.objects.library_file
+    if library is None or not Path(library).is_file():
+        return
+    try:
+        raw = yaml.safe_load(Path(library).read_text())
+    except (OSError, yaml.YAMLError):
+        return  # the library's reader says what is wrong with the file, and the fix, where the objects are loaded
+    objects = raw.get("objects") if isinstance(raw, dict) else None
+    for name in objects if isinstance(objects, dict) else ():
+        problem = object_name_problem(str(name))
+        if problem:
+            raise MultigraspError(f"object library {library}: objects.{name}: {problem}")
+
+
 def build_config(tree: dict[str, Any]) -> PipelineConfig:
     """Validate a config tree, turning the first pydantic error into a one-line message."""
     try:
-        return PipelineConfig.model_validate(tree)
+        cfg = PipelineConfig.model_validate(tree)
+        _check_object_names(cfg)
+        return cfg
     except ValidationError as exc:
         raise MultigraspError(_describe(exc.errors()[0])) from None
     except MultigraspError:

@@ -304,7 +304,10 @@ def _worker_init() -> None:
 
     import torch
 
+    from flows.library_logs import quiet_handled_warnings
+
     torch.set_num_threads(1)  # the workers share the cores
+    quiet_handled_warnings()  # spawned: the CLI's logger levels are not inherited
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the command stops them
 
 

@@ -319,13 +319,11 @@ def test_an_object_name_that_would_break_folders_or_combinations_is_one_line_nam
 
 
 def test_a_library_file_with_an_unsafe_object_name_is_one_line(tmp_path):
-    from components.objects.config import check_object_name
-    from components.objects.library import read_library_file
+    from flows.config import object_name_problem
 
     library = tmp_path / "library.yaml"
     library.write_text("version: 1\nobjects:\n  'big+block':\n    role: train\n"
                        "    shape: {type: box, size_m: [0.03, 0.03, 0.03]}\n")
-    with pytest.raises(MultigraspError) as info:
-        read_library_file(library)
-    assert "big+block" in str(info.value) and "rename it, e.g. 'big_block'" in str(info.value)
-    assert check_object_name("mug_v2.1") == "mug_v2.1"  # dots, digits, '_' and '-' stay allowed
+    message = _one_line_error(profile="smoke", sets=[f"objects.library_file={library}"])
+    assert "big+block" in message and "rename it, e.g. 'big_block'" in message
+    assert object_name_problem("mug_v2.1") is None  # dots, digits, '_' and '-' stay allowed

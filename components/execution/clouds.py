@@ -9,9 +9,7 @@ frame") and encoded by a frozen encoder (the pre-trained PointNet), one batched 
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -26,18 +24,6 @@ from components.synthesis.hand_surface import HandSurface
 
 #: encoder(clouds (n, N, 3) float32) -> features (n, feature_dim)
 Encoder = Callable[[torch.Tensor], torch.Tensor]
-
-
-@contextmanager
-def _quiet_logger(name: str) -> Iterator[None]:
-    """Hold the logger ``name`` to errors for the block and give it back its level after."""
-    logger = logging.getLogger(name)
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        yield
-    finally:
-        logger.setLevel(level)
 
 
 class CloudFeaturizer:
@@ -59,8 +45,7 @@ class CloudFeaturizer:
         """Fixed surface samples of an object, in its frame (cached).  -> (N, 3)."""
         if name not in self._object_local:
             mesh = self.library.get(name).mesh
-            with _quiet_logger("trimesh.sample"):  # its "only got n/N samples!" warning: the shortfall is topped up below
-                points, _ = trimesh.sample.sample_surface_even(mesh, self.cfg.object_cloud_points, seed=self.cfg.cloud_seed)
+            points, _ = trimesh.sample.sample_surface_even(mesh, self.cfg.object_cloud_points, seed=self.cfg.cloud_seed)
             if len(points) < self.cfg.object_cloud_points:  # even sampling may return fewer: top up uniformly
                 extra, _ = trimesh.sample.sample_surface(mesh, self.cfg.object_cloud_points - len(points), seed=self.cfg.cloud_seed)
                 points = np.concatenate([points, extra])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Literal, Optional
 
@@ -22,24 +21,11 @@ FILE_BY_CONTENTS = "<contents: objects.files>"
 #: UserMesh.max_faces by default
 DEFAULT_USER_MESH_MAX_FACES = 10_000
 
-#: What an object's name may hold: it names cache files and stage folders, joins a combination's names with '+'
-#: ("cube+mug"), sits between ':' in scene ids ("Pl:cube+mug:0") and between ',' in `generate --objects`.
-OBJECT_NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
-
-
-def check_object_name(name: str) -> str:
-    """``name`` if it matches :data:`OBJECT_NAME_PATTERN`, else a ValueError that says what a name may hold."""
-    if not OBJECT_NAME_PATTERN.fullmatch(name):
-        raise ValueError(f"object name {name!r} may hold only letters, digits, '_', '-' and '.' (and starts with a "
-                         "letter or digit): it names folders and is joined with '+', ':' and ','; rename it, e.g. "
-                         f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', name).strip('_.-') or 'my_object'!r}")
-    return name
-
 
 class UserMesh(Section):
     """A mesh brought by the user (OBJ, STL or PLY), added to the library under ``name``."""
 
-    name: str = Field(..., min_length=1, description="Name used to refer to the object (in train/ood lists, scenes): letters, digits, '_', '-' and '.', starting with a letter or digit (it names folders and is joined with '+', ':' and ',').")
+    name: str = Field(..., min_length=1, description="Name used to refer to the object (in train/ood lists, scenes).")
     mesh: Path = Field(..., description="Path of the mesh file (.obj, .stl or .ply); relative paths are read from the folder of the config file that names them (from the working directory in --set).")
     scale: float = Field(1.0, gt=0, description="Uniform factor applied to the file's coordinates to get metres (e.g. 0.001 for a file in millimetres).")
     mass_kg: float | None = Field(None, gt=0, description="Mass in kg; default: volume x objects.default_density_kg_m3.")
@@ -59,11 +45,6 @@ class UserMesh(Section):
             "by its convex hull (with a warning) — use it for open scans of convex-ish objects."
         ),
     )
-
-    @field_validator("name")
-    @classmethod
-    def _safe_name(cls, name: str) -> str:
-        return check_object_name(name)
 
 
 class ObjectsConfig(Section):

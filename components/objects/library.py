@@ -25,12 +25,12 @@ import torch
 import trimesh
 import yaml
 from scipy.spatial.transform import Rotation
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError
 
 from components.config_base import Section
 from components.errors import MultigraspError
 from components.objects import cache, meshes
-from components.objects.config import ObjectsConfig, check_object_name
+from components.objects.config import ObjectsConfig
 from components.objects.sdf import SDFGrid, grid_sdf, load_or_build_sdf_grid
 from components.objects.shapes import AnyShape, MeshShape
 
@@ -64,14 +64,7 @@ class LibraryFile(Section):
     """Schema of ``assets/objects/library.yaml``."""
 
     version: Literal[1] = Field(..., description="File format version.")
-    objects: dict[str, ObjectSpec] = Field(..., min_length=1, description="Objects by name (letters, digits, '_', '-', '.').")
-
-    @field_validator("objects")
-    @classmethod
-    def _safe_names(cls, objects: dict[str, ObjectSpec]) -> dict[str, ObjectSpec]:
-        for name in objects:
-            check_object_name(name)
-        return objects
+    objects: dict[str, ObjectSpec] = Field(..., min_length=1, description="Objects by name.")
 
 
 def resolve_source(source: str, base_dir: Path) -> Path:
