@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Sample pre-grasps with the train-generator stage's model for a sampled scene of "
                                     "--objects (or the scene of --placement), convert them by IK, refine them, and "
                                     "write grasps.json, scene.json and a render grid to <workdir>/results/generated/.")
-    ge.add_argument("--objects", type=lambda s: [x for x in s.split(",") if x], default=[],
+    ge.add_argument("--objects", type=lambda s: [x.strip() for x in s.split(",") if x.strip()], default=[],
                     help="comma-separated object names (library or user meshes), e.g. cube,cylinder")
     ge.add_argument("--n", type=int, default=16, help="grasps to generate (default 16)")
     ge.add_argument("--palm-direction", type=float, default=None, metavar="DEG",

@@ -40,3 +40,10 @@ def test_each_single_stage_command_runs_its_stage_after_its_upstream(command, st
     assert main([command, "--workdir", str(tmp_path)]) == 2
     assert ran["stages"] == stages and ran["command"] in (command, "train-lifting")
     assert "error: recorded" in capsys.readouterr().err
+
+
+def test_generate_objects_may_be_written_with_spaces_after_the_commas():
+    """``--objects "cube, cylinder"`` named an unknown object ' cylinder'."""
+    from flows.cli import build_parser
+
+    assert build_parser().parse_args(["generate", "--objects", "cube, cylinder ,"]).objects == ["cube", "cylinder"]
