@@ -496,6 +496,7 @@ def test_an_object_cloud_has_its_size_and_the_cli_holds_back_the_shortfall_warni
     sampler = logging.getLogger("trimesh.sample")
     level, threads, on_sigint = sampler.level, torch.get_num_threads(), signal.getsignal(signal.SIGINT)
     try:
+        sampler.setLevel(logging.NOTSET)  # as in a process that never ran the CLI (an earlier test may have)
         with caplog.at_level(logging.WARNING):
             short, _ = trimesh.sample.sample_surface_even(library.get("cup").mesh, cfg.object_cloud_points,
                                                           seed=cfg.cloud_seed)
