@@ -81,6 +81,8 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
         raise MultigraspError(f"--n must be at least 1 (got {n})")
     library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     if placement is not None:
+        if not Path(placement).is_file():
+            raise MultigraspError(f"--placement {placement} does not exist; fix the path")
         try:
             scene = Scene.from_dict(json.loads(Path(placement).read_text()))
         except (OSError, ValueError, KeyError, TypeError) as exc:

@@ -66,6 +66,21 @@ def test_generate_for_an_object_the_generator_never_saw(trained):
     assert first["q1"] >= 0.0 and 0.0 <= first["contact_ratio"] <= 1.0 and isinstance(first["kept"], bool)
     assert (folder / "grasps.png").is_file()
     assert json.loads((folder / "scene.json").read_text())["objects"][1]["name"] == "block"
+    # --placement: the same scene again, from the scene.json that generate wrote
+    assert main(["generate", "--placement", str(folder / "scene.json"), "--n", "1", "--seed", "1", *base]) == 0
+    again = [f for f in (workdir / "results" / "generated").iterdir() if f != folder]
+    assert len(again) == 1 and json.loads((again[0] / "scene.json").read_text()) == json.loads(
+        (folder / "scene.json").read_text())
+
+
+def test_generate_placement_that_is_missing_or_unreadable_is_one_line(tmp_path, capsys):
+    base = ["--profile", "smoke", "--workdir", str(tmp_path / "runs")]
+    assert main(["generate", "--placement", str(tmp_path / "none.json"), *base]) == 2
+    assert "does not exist; fix the path" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text("{bad")
+    assert main(["generate", "--placement", str(tmp_path / "bad.json"), *base]) == 2
+    err = capsys.readouterr().err
+    assert "is not a readable scene JSON" in err and err.count("\n") == 1
 
 
 def test_generate_without_a_trained_generator_names_the_command(tmp_path, capsys):
