@@ -92,7 +92,20 @@ def _load(args: argparse.Namespace, needs_device: bool = True):
 def _using(cfg, create: bool = False):
     """The work dir's lock, shared, for a command that reads or writes its units: a ``prune --yes`` waits for none of
     them and none of them starts while one deletes."""
-    from tasks.artifacts import workdir_in_use
+    from tasks.artifacts import LOCKS_DIR, workdir_in_use
+
+    workdir = cfg.run.workdir
+    if create or workdir.is_dir():  # a work dir that cannot be made or written: one line, not an OSError from a lock
+        locks = workdir / LOCKS_DIR
+        try:
+            locks.mkdir(parents=True, exist_ok=True)
+            writable = os.access(locks, os.W_OK)
+        except OSError as exc:
+            raise MultigraspError(f"cannot use the work dir {workdir}: {exc.strerror or exc} at {exc.filename or locks}"
+                                  " — pass --workdir a folder you can write") from None
+        if not writable:
+            raise MultigraspError(f"cannot write in the work dir {workdir} — pass --workdir a folder you can write, or "
+                                  "fix its permissions")
 
     def waiting() -> None:
         print(f"a prune is deleting unused outputs of {cfg.run.workdir}; waiting for it", file=sys.stderr, flush=True)

@@ -47,3 +47,11 @@ def test_generate_objects_may_be_written_with_spaces_after_the_commas():
     from flows.cli import build_parser
 
     assert build_parser().parse_args(["generate", "--objects", "cube, cylinder ,"]).objects == ["cube", "cylinder"]
+
+
+def test_a_work_dir_that_cannot_be_made_is_one_line(tmp_path, capsys):
+    """``--workdir`` under a file (or on a read-only mount) ended in an OSError traceback from the work dir's lock."""
+    (tmp_path / "afile").write_text("")
+    assert main(["run", "--profile", "smoke", "--workdir", str(tmp_path / "afile" / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot use the work dir" in err and "pass --workdir a folder you can write" in err
