@@ -251,8 +251,10 @@ def _describe(error: dict[str, Any]) -> str:
         return f"unknown config key '{loc}'{hint} — see `multigrasp run --help` and configs/*.yaml for valid keys"
     value = error.get("input")
     shown = repr(value) if not isinstance(value, dict) else "a mapping"
-    message = error["msg"].removeprefix("Value error, ")  # a validator's own message: pydantic's prefix is noise
-    got = "" if shown in message else f" (got {shown[:80]})"
+    message = error["msg"]
+    if error["type"] == "value_error":  # a validator's own message: pydantic's prefix is noise, and it may name the value
+        message = message.removeprefix("Value error, ")
+    got = "" if error["type"] == "value_error" and shown in message else f" (got {shown[:80]})"
     return f"bad value for '{loc}': {message}{got}"
 
 
@@ -279,15 +281,12 @@ def _check_object_names(cfg: PipelineConfig) -> None:
         if problem:
             raise MultigraspError(f"bad value for 'objects.user.{index}.name': {problem}")
     library = cfg.objects.library_file
-    if library is None or not Path(library).is_file():
+    if library is None or not Path(library).is_file():  # a missing file: the library says so where it is loaded
         return
-    try:
-        raw = yaml.safe_load(Path(library).read_text())
-    except (OSError, yaml.YAMLError):
-        return  # the library's reader says what is wrong with the file, and the fix, where the objects are loaded
-    objects = raw.get("objects") if isinstance(raw, dict) else None
-    for name in objects if isinstance(objects, dict) else ():
-        problem = object_name_problem(str(name))
+    from components.objects.library import read_library_file  # its one-line errors for a malformed file
+
+    for name in read_library_file(Path(library)).objects:
+        problem = object_name_problem(name)
         if problem:
             raise MultigraspError(f"object library {library}: objects.{name}: {problem}")
 

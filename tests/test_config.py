@@ -69,6 +69,9 @@ def test_a_misspelt_field_of_a_user_mesh_is_suggested_with_its_index():
 def test_out_of_range_value_names_the_key():
     message = _one_line_error(profile="smoke", sets=["scenes.renders=-1"])
     assert "scenes.renders" in message and "greater than or equal to 0" in message
+    # the value is shown even where its digits occur in pydantic's message (16 holds 1)
+    message = _one_line_error(profile="smoke", sets=["objects.surface_points=1"])
+    assert "greater than or equal to 16 (got 1)" in message
 
 
 def test_bad_choice_names_the_key():
