@@ -339,14 +339,18 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
     cfg = _load(args, needs_device=False)  # status reads files only: a cluster's work dir, checked on a laptop
     table = Table(title=f"multigrasp status — profile {cfg.profile}, workdir {cfg.run.workdir}")
-    for col in ("stage", "state", "units", "output", "note"):
-        table.add_column(col)
+    for col in ("stage", "state", "units"):
+        table.add_column(col, no_wrap=True)
+    # the output folder relative to the work dir (in the title), folded rather than cut: on an 80-column terminal
+    # rich cut the absolute path to "/work/…/st…", the one thing a user reads the column for
+    table.add_column("output (in workdir)", overflow="fold")
+    table.add_column("note")
     colors = {"done": "green", "partial": "yellow", "stale": "magenta", "corrupt": "red", "missing": "white",
               "blocked": "dim"}
     rows = status(cfg)
     for row in rows:
         table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
-                      row.folder or "-", row.detail)
+                      _within(row.folder, cfg.run.workdir) if row.folder else "-", row.detail)
     console = Console()
     console.print(table)
     if (cfg.run.workdir / "results").is_dir():
@@ -372,6 +376,14 @@ def _cmd_status(args: argparse.Namespace) -> int:
             command = shlex.join(["multigrasp", "run", "--evaluate", *options])
             console.print(f"`{escape(command)}` computes the Table I evaluations that are not current, then the report")
     return 0
+
+
+def _within(path: str | Path, root: Path) -> str:
+    """``path`` relative to ``root`` where it lies under it, else as it is."""
+    try:
+        return str(Path(path).relative_to(root))
+    except ValueError:
+        return str(path)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:

@@ -216,7 +216,7 @@ def status(cfg: PipelineConfig) -> list[StageStatus]:
         stage_dir = cfg.run.workdir / "stages" / module.STAGE
         others = [p for p in stage_dir.iterdir() if p.is_dir()] if stage_dir.exists() else []
         if final is not None:
-            state, detail = "done", "served from cache on the next run"
+            state, detail = "done", "served from cache"
         elif corrupt:
             state, detail = "corrupt", f"{len(corrupt)} unit(s) with missing/altered files will be recomputed"
         elif n_done or started:

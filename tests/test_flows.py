@@ -265,6 +265,31 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
     assert "missing" in capsys.readouterr().out
 
 
+def test_status_shows_each_done_stage_folder_whole_on_an_80_column_terminal(smoke_runs, capsys, monkeypatch):
+    """The output column holds each stage's folder relative to the work dir (named in the title), folded over lines
+    where it is long: rich cut the absolute path to "/tmp/…/st…" on an 80-column terminal."""
+    workdir = smoke_runs[0]
+    monkeypatch.setenv("COLUMNS", "80")
+    capsys.readouterr()
+    assert main(["status", "--profile", "smoke", "--workdir", str(workdir)]) == 0
+    out = capsys.readouterr().out
+    assert max(len(line) for line in out.splitlines()) <= 80
+    cells: dict[str, str] = {}
+    stage = None
+    for line in out.split("evaluations in")[0].splitlines():
+        parts = [part.strip() for part in line.split("│")]
+        if len(parts) < 6:
+            continue
+        stage = parts[1] or stage  # a folded row continues the stage above it
+        cells[stage] = cells.get(stage, "") + parts[4]
+    cfg = load_config("smoke", workdir=workdir)
+    rows = status(cfg)
+    assert rows and all(row.state == "done" for row in rows)
+    for row in rows:
+        assert cells[row.name] == str(Path(row.folder).relative_to(workdir))
+        assert (workdir / cells[row.name] / "manifest.json").is_file()
+
+
 def test_status_tells_a_started_unit_from_another_configs_outputs(tmp_path):
     """A unit folder without a manifest (a training running now, or interrupted with its checkpoint) is 'partial',
     not 'stale' ('outputs exist only for another config'), which it was reported as before; the unit's lock tells
