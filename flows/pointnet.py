@@ -5,7 +5,7 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
                            make_tracker, single_unit)
 from tasks.artifacts import Manifest, code_version
 from tasks.pointnet import POINTNET_CODE_DIRS, pretrain_task
@@ -15,6 +15,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "pointnet"
 UPSTREAM: tuple[str, ...] = ()
 DESCRIPTION = "pre-train the PointNet encoder of hand / object point clouds (frozen 256-d features of the lift policies)"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("pointnet", "lift", "hand", "objects")
 
 
 def stage_spec(cfg: PipelineConfig, run_id: str | None = None, tracking_uri: str | None = None) -> UnitSpec:
@@ -32,7 +34,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 @flow(name="pointnet", log_prints=False, validate_parameters=False)
 def pointnet_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     console = make_console()
     console.print(f"[bold cyan]{STAGE}[/] pre-training the encoder ({cfg.pointnet.encoder.steps} steps)")
     progress = StageProgress(console, STAGE, total=1)

@@ -7,7 +7,7 @@ from prefect import flow
 
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.reach import REACH_CODE_DIRS, reach_merge_task, reach_shard_task
@@ -18,6 +18,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "reach"
 UPSTREAM: tuple[str, ...] = ("synthesize",)
 DESCRIPTION = "plan and execute the reach from an open hand to each specialist pre-grasp in PyBullet; record the end-of-reach states"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("reach", "lift", "hand", "objects")
 
 
 def shard_plan(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
@@ -53,7 +55,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 @flow(name="reach", log_prints=False, validate_parameters=False)
 def reach_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, upstream, run_id, uri)
     console = make_console()

@@ -19,7 +19,7 @@ from rich.console import Console
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, RunConfig
 from tasks.artifacts import Manifest, upstream_hashes
-from tasks.tracking import Tracker, default_tracking_uri
+from tasks.tracking import Tracker, default_tracking_uri, flatten
 from tasks.units import UnitSpec, make_spec, records_dir
 
 log = logging.getLogger("multigrasp")
@@ -319,6 +319,29 @@ def make_console() -> Console:
 def make_tracker(cfg: PipelineConfig) -> Tracker:
     cfg.run.workdir.mkdir(parents=True, exist_ok=True)
     return Tracker(default_tracking_uri(cfg.run.workdir), cfg.tracking.experiment, cfg.run.workdir)
+
+
+def stage_params(cfg: PipelineConfig, settings: Sequence[str]) -> dict[str, str]:
+    """The config's values under each dotted path of ``settings``, flattened to MLflow params (``synthesis.optimizer.
+    batch_size`` → ``"256"``)."""
+    tree = cfg.model_dump(mode="json")
+    params: dict[str, str] = {}
+    for path in settings:
+        node = tree
+        for part in path.split("."):
+            node = node[part]
+        params.update(flatten(node, path + ".") if isinstance(node, dict) else {path: str(node)})
+    return params
+
+
+def start_stage_run(tracker: Tracker, cfg: PipelineConfig, stage: str, settings: Sequence[str],
+                    parent_run_id: str) -> str:
+    """A stage's MLflow run, a child of the invocation's, with the settings it reads as params: the parent holds the
+    whole config, but MLflow compares runs by their own params, so two runs' ``synthesize`` children differed there
+    in metrics only."""
+    run_id = tracker.start_run(stage, parent_id=parent_run_id, tags={"stage": stage})
+    tracker.log_params(run_id, stage_params(cfg, settings))
+    return run_id
 
 
 # --------------------------------------------------------------------------- progress

@@ -5,7 +5,7 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.tracking import Tracker
 from tasks.artifacts import Manifest, code_version
@@ -16,6 +16,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "scenes"
 UPSTREAM: tuple[str, ...] = ()
 DESCRIPTION = "sample tabletop placements per object combination, settle them in PyBullet, render a few"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("scenes", "objects", "hand", "run.seed")
 
 
 def scene_jobs(cfg: PipelineConfig) -> list[tuple[str, tuple[str, ...], int]]:
@@ -67,7 +69,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     """Shards of sampled + settled scenes (fanned out), then merge + render."""
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, run_id, uri)
     progress = StageProgress(make_console(), STAGE, total=len(plan) + 1)

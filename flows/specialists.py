@@ -11,7 +11,7 @@ from components.execution.clustering import assign_bins
 from components.execution.ppo_config import EXTENDABLE_FIELDS
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task, training_digest
@@ -21,6 +21,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "specialists"
 UPSTREAM: tuple[str, ...] = ("synthesize", "pointnet")
 DESCRIPTION = "bin the training pre-grasps and train one TorchRL PPO lift specialist per bin in PyBullet"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("specialists", "lift", "hand", "objects", "run.seed")
 
 
 def bin_unit(label: str) -> str:
@@ -79,7 +81,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 @flow(name="specialists", log_prints=False, validate_parameters=False)
 def specialists_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     uri = tracker.tracking_uri
     plan = bin_plan(cfg, upstream, run_id, uri)
     console = make_console()

@@ -7,7 +7,7 @@ from typing import Any
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.synthesize import SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_shard_task
@@ -18,6 +18,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "synthesize"
 UPSTREAM: tuple[str, ...] = ("scenes",)
 DESCRIPTION = "synthesise multi-object pre-grasps per scene (DFC energy, annealed MALA, refinement, filter), Q1 / PN"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("synthesis", "hand", "objects", "run.seed")
 #: Console lines listing combinations with 0 accepted grasps (the rest are in report.md).
 MAX_ZERO_LINES = 8
 
@@ -85,7 +87,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 def synthesize_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     """Shards of synthesised grasps (fanned out), then merge + statistics + renders."""
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, upstream["scenes"], run_id, uri)
     console = make_console()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
+from flows.runtime import (start_stage_run, StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
                            make_tracker, single_unit)
 from tasks.artifacts import Manifest, code_version, upstream_hashes
 from tasks.generator import GENERATOR_CODE_DIRS, train_task
@@ -15,6 +15,8 @@ from tasks.units import UnitSpec, make_spec
 STAGE = "train-generator"
 UPSTREAM: tuple[str, ...] = ("synthesize",)
 DESCRIPTION = "train the diffusion pre-grasp generator (31 palm-aligned keypoints, PointNet++ objects, DDPM)"
+# the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
+SETTINGS: tuple[str, ...] = ("generator", "hand", "objects", "run.seed")
 
 
 def stage_spec(cfg: PipelineConfig, synthesis: Manifest, run_id: str | None = None,
@@ -36,7 +38,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 @flow(name="train-generator", log_prints=False, validate_parameters=False)
 def train_generator_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(STAGE, parent_id=parent_run_id, tags={"stage": STAGE})
+    run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     console = make_console()
     console.print(f"[bold cyan]{STAGE}[/] {cfg.generator.model.train_steps} steps, batch {cfg.generator.model.batch_size} "
                   f"({cfg.generator.records_source} grasps of {cfg.generator.splits})")

@@ -249,6 +249,15 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     pngs = [a.path for a in client.list_artifacts(scenes_run.info.run_id, "renders")]
     assert pngs and all(p.endswith(".png") for p in pngs)
     assert scenes_run.data.metrics["scenes"] > 0
+    # each stage run holds the settings it reads as params (MLflow compares runs by their own params)
+    cfg = load_config("smoke", workdir=workdir)
+    synthesize_run = next(r for r in children if r.data.tags["stage"] == "synthesize")
+    assert synthesize_run.data.params["synthesis.optimizer.batch_size"] == str(cfg.synthesis.optimizer.batch_size)
+    assert synthesize_run.data.params["run.seed"] == str(cfg.run.seed)
+    assert not any(k.startswith(("specialists.", "generator.")) for k in synthesize_run.data.params)
+    specialists_run = next(r for r in children if r.data.tags["stage"] == "specialists")
+    assert specialists_run.data.params["specialists.ppo.lr"] == str(cfg.specialists.ppo.lr)
+    assert all(child.data.params for child in children)
 
     second_parent = max(parents, key=lambda r: r.info.start_time)
     cached = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == second_parent.info.run_id]
