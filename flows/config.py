@@ -64,6 +64,12 @@ class TrackingConfig(Section):
 
     experiment: str = Field("multigrasp", min_length=1, description="MLflow experiment name.")
     renders: bool = Field(True, description="Log PNG/GIF renders as MLflow artifacts.")
+    generator_sample_scenes: int = Field(
+        2, ge=0, le=16,
+        description="After a training of the generator, this many of its training scenes (the most objects first) "
+        "get generator.eval_grasps_per_scene samples (IK and refinement included), scored and rendered beside the "
+        "dataset's grasps of the same scene, in the train-generator run (with `renders`); 0 = none.  No stage "
+        "output depends on it.")
 
 
 class PipelineConfig(Section):

@@ -258,11 +258,20 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
     specialists_run = next(r for r in children if r.data.tags["stage"] == "specialists")
     assert specialists_run.data.params["specialists.ppo.lr"] == str(cfg.specialists.ppo.lr)
     assert all(child.data.params for child in children)
+    # the trained generator's samples on a training scene, rendered beside the dataset's grasps of that scene
+    generator_run = next(r for r in children if r.data.tags["stage"] == "train-generator")
+    samples = sorted(a.path for a in client.list_artifacts(generator_run.info.run_id, "generator/samples"))
+    assert len(samples) == 2 * cfg.tracking.generator_sample_scenes
+    assert samples[0].endswith("_data.png") and samples[1].endswith("_samples.png")
+    assert generator_run.data.metrics["samples/n"] == cfg.generator.eval_grasps_per_scene
+    assert 0.0 <= generator_run.data.metrics["samples/kept_fraction"] <= 1.0
 
     second_parent = max(parents, key=lambda r: r.info.start_time)
     cached = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == second_parent.info.run_id]
     assert cached and all(r.data.tags["cached"] == "true" for r in cached)
     assert all(r.data.tags["cached_from_run"] in {c.info.run_id for c in children} for r in cached)
+    cached_generator = next(r for r in cached if r.data.tags["stage"] == "train-generator")
+    assert not client.list_artifacts(cached_generator.info.run_id, "generator/samples")  # logged where it trained
 
 
 def test_status_lists_missing_then_done(tmp_path, capsys):

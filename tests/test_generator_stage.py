@@ -308,3 +308,22 @@ def test_a_generator_trained_elsewhere_is_adopted_by_its_unit(trained, tmp_path,
     assert manifest.meta["resumed_from"] == 4 and manifest.meta["extended_from"] == ""
     done = executions(workdir)
     assert main(["run", *run, "--only", "train-generator"]) == 0 and executions(workdir) == done
+
+
+def test_sample_renders_that_fail_cost_a_warning_not_the_trained_generator(trained, capsys, monkeypatch):
+    """The samples logged after a training (tracking.generator_sample_scenes) are tracking only: if they fail, the
+    run says so in one line and goes on, and the trained unit is kept and served from then on."""
+    import flows.train_generator
+
+    def broken(*_args, **_kwargs):
+        raise RuntimeError("renderer unavailable")
+
+    monkeypatch.setattr(flows.train_generator, "log_samples", broken)
+    workdir, base, _, _ = trained
+    run = [*base, "--set", "generator.model.train_steps=7"]
+    capsys.readouterr()
+    assert main(["run", *run, "--until", "train-generator"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "the sample renders were not logged (RuntimeError: renderer unavailable); the trained generator is kept" in err
+    done = executions(workdir)
+    assert main(["run", *run, "--until", "train-generator"]) == 0 and executions(workdir) == done  # served
