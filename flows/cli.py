@@ -162,6 +162,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("stages", help="show the stage DAG and what each stage does",
                    description="List the pipeline's stages in execution order with their upstream stages.")
 
+    cf = sub.add_parser("config", help="print the resolved config (profile <- --config <- --set) as YAML",
+                        description="Print the config a command with the same options would run, every key with its "
+                                    "value, as YAML that --config reads back (`multigrasp config --profile bench > "
+                                    "my.yaml` starts a file of your own). Runs nothing and reads no work dir.")
+    _config_args(cf)
+    cf.add_argument("--key", metavar="KEY", help="only this part of the config, e.g. synthesis.optimizer or "
+                                                 "specialists.ppo.lr")
+    cf.add_argument("--describe", action="store_true", help="each field's documentation as a comment above it")
+
     upstream = (" Its upstream stages run first where they are not done for the same config (served from cache "
                 "where they are); `multigrasp run --only STAGE` runs the stage alone.")
     sc = sub.add_parser("scenes", help="run the scenes stage (placements, settling, renders)",
@@ -423,6 +432,14 @@ def _label(profile: str, config: Path | None, sets: list[str]) -> str:
     return " ".join([f"profile {profile}"] + ([f"+ {config}"] if config else []) + [f"--set {s}" for s in sets])
 
 
+def _cmd_config(args: argparse.Namespace) -> int:
+    from flows.config import config_yaml
+
+    cfg = _load(args, needs_device=False)  # printing a paper-profile config needs no GPU
+    sys.stdout.write(config_yaml(cfg, args.key, args.describe))
+    return 0
+
+
 def _cmd_stages(_: argparse.Namespace) -> int:
     from flows.pipeline import STAGES
 
@@ -581,7 +598,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # where torchrl was imported before main()
-    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "ui": _cmd_ui, "prune": _cmd_prune,
+    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "config": _cmd_config, "ui": _cmd_ui, "prune": _cmd_prune,
                 "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 **{name: _single_stage(name, stage) for name, stage, _ in SINGLE_STAGE_COMMANDS},

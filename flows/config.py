@@ -456,3 +456,90 @@ def _file_sha256(path: str, mtime_ns: int, size: int) -> str:
     from components.fileio import sha256_file
 
     return sha256_file(Path(path))
+
+
+# --------------------------------------------------------------------------- printing a config
+
+#: Width of the description comments of :func:`config_yaml`.
+DESCRIBE_WIDTH = 100
+
+
+def config_yaml(cfg: PipelineConfig, key: str | None = None, describe: bool = False) -> str:
+    """``cfg`` (or its part under the dotted ``key``) as YAML that ``--config`` reads back into the same config:
+    sections as nested blocks, every other value on one line in JSON's flow syntax (which YAML reads); with
+    ``describe``, each field's description as a comment above it.  An unknown key is a one-line error naming the
+    nearest known one."""
+    node: Any = cfg
+    path: list[str] = []
+    for part in key.split(".") if key else []:
+        if isinstance(node, Section) and part in type(node).model_fields:
+            node = getattr(node, part)
+        elif isinstance(node, (list, tuple)) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            loc = tuple(int(p) if p.isdigit() else p for p in [*path, part])
+            close = _closest_key(loc)
+            hint = f" (did you mean '{close}'?)" if close else ""
+            raise MultigraspError(f"unknown config key '{key}'{hint} — `multigrasp config` prints every key")
+        path.append(part)
+    lines: list[str] = []
+    if isinstance(node, Section):
+        _section_lines(node, 0, describe, lines)
+        text = "\n".join(lines)
+        for part in reversed(path):  # nest the part under its key, so the output is still a --config file
+            text = f"{part}:\n" + "\n".join("  " + line if line else line for line in text.splitlines())
+        return text + "\n"
+    return _nest(path, _flow(_plain(node))) + "\n"
+
+
+def _nest(path: list[str], value: str) -> str:
+    """``a.b.c = v`` as ``a:\\n  b:\\n    c: v`` (a list index stays a key: the value of one list item)."""
+    lines = [f"{'  ' * depth}{part}:" for depth, part in enumerate(path[:-1])]
+    return "\n".join([*lines, f"{'  ' * (len(path) - 1)}{path[-1]}: {value}" if path else value])
+
+
+def _section_lines(section: Section, depth: int, describe: bool, lines: list[str]) -> None:
+    import textwrap
+
+    indent = "  " * depth
+    for name, info in type(section).model_fields.items():
+        value = getattr(section, name)
+        if describe and info.description:
+            lines.extend(f"{indent}# {line}" for line in textwrap.wrap(info.description, DESCRIBE_WIDTH - len(indent)))
+        if isinstance(value, Section):
+            lines.append(f"{indent}{name}:")
+            _section_lines(value, depth + 1, describe, lines)
+        else:
+            lines.append(f"{indent}{name}: {_flow(_plain(value))}")
+
+
+def _plain(value: Any) -> Any:
+    """A field's value as JSON-ready data (sections inside lists as dicts, paths as strings)."""
+    if isinstance(value, Section):
+        return value.model_dump(mode="json")
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def _flow(value: Any) -> str:
+    """One value in YAML flow syntax: JSON, except that YAML spells infinities and NaN its own way."""
+    import json
+    import math
+
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
+        text = repr(value)
+        mantissa, e, exponent = text.partition("e")
+        # YAML 1.1 (PyYAML) reads 1e-06 as a string: a float's mantissa needs its point
+        return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(k)}: {_flow(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_flow(v) for v in value) + "]"
+    return json.dumps(value)

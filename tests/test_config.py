@@ -330,3 +330,43 @@ def test_a_library_file_with_an_unsafe_object_name_is_one_line(tmp_path):
     message = _one_line_error(profile="smoke", sets=[f"objects.library_file={library}"])
     assert "big+block" in message and "rename it, e.g. 'big_block'" in message
     assert object_name_problem("mug_v2.1") is None  # dots, digits, '_' and '-' stay allowed
+
+
+@pytest.mark.parametrize("profile", ["smoke", "mini", "bench", "paper"])
+@pytest.mark.parametrize("describe", [False, True])
+def test_config_command_prints_yaml_that_reads_back_into_the_same_config(tmp_path, capsys, profile, describe):
+    """`multigrasp config --profile P > my.yaml` starts a file of one's own: read back with --config it is P's
+    config, key for key (the paper profile's too, on a machine without CUDA)."""
+    from flows.cli import main
+
+    assert main(["config", "--profile", profile, *(["--describe"] if describe else [])]) == 0
+    text = capsys.readouterr().out
+    assert ("# Candidate grasps optimised in parallel for one scene" in text) == describe
+    dumped = tmp_path / "my.yaml"
+    dumped.write_text(text)
+    assert load_config(None, dumped) == load_config(profile)
+
+
+def test_config_command_prints_one_key_with_the_overrides_applied(tmp_path, capsys):
+    import yaml
+
+    from flows.cli import main
+
+    sets = ["--set", "synthesis.optimizer.fc_friction=0.2", "--set", "objects.train=[cube, sphere]"]
+    assert main(["config", "--profile", "bench", *sets, "--key", "synthesis.optimizer.fc_friction"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out) == {"synthesis": {"optimizer": {"fc_friction": 0.2}}}
+    assert main(["config", "--profile", "bench", *sets, "--key", "objects.train"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out) == {"objects": {"train": ["cube", "sphere"]}}
+    assert main(["config", "--profile", "bench", "--key", "specialists.ppo", "--describe"]) == 0
+    part = capsys.readouterr().out
+    assert part.startswith("specialists:\n  ppo:\n") and "# Adam learning rate" in part
+    assert yaml.safe_load(part)["specialists"]["ppo"] == load_config("bench").specialists.ppo.model_dump(mode="json")
+
+
+def test_config_command_with_an_unknown_key_is_one_line_naming_the_nearest(capsys):
+    from flows.cli import main
+
+    assert main(["config", "--key", "synthesis.optimiser"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown config key 'synthesis.optimiser'" in err
+    assert "did you mean 'synthesis.optimizer'?" in err
