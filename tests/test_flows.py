@@ -308,6 +308,19 @@ def test_status_shows_each_done_stage_folder_whole_on_an_80_column_terminal(smok
         assert (workdir / cells[row.name] / "manifest.json").is_file()
 
 
+def test_the_readme_block_that_reads_a_work_dirs_grasps_runs_on_the_smoke_run(smoke_runs):
+    """README "Reading a work dir's outputs in Python", run as written with the smoke run's work dir for ``runs``."""
+    workdir = smoke_runs[0]
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = readme.split("```python\n# reading a work dir's grasps\n", 1)[1].split("```", 1)[0]
+    assert 'Path("runs")' in block
+    namespace: dict = {}
+    exec(compile(block.replace('Path("runs")', f"Path({str(workdir)!r})"), "README.md", "exec"), namespace)
+    assert tuple(namespace["keypoints"].shape) == (4, 31, 3)
+    assert len(namespace["accepted"]) + len(namespace["rejected"]) > 0
+    assert "reason" in namespace["rejected"].columns
+
+
 def test_status_tells_a_started_unit_from_another_configs_outputs(tmp_path):
     """A unit folder without a manifest (a training running now, or interrupted with its checkpoint) is 'partial',
     not 'stale' ('outputs exist only for another config'), which it was reported as before; the unit's lock tells
