@@ -109,7 +109,8 @@ def log_samples(cfg: PipelineConfig, tracker: Tracker, run_id: str, generator: M
             name = record["id"].replace("/", ":").replace(":", "_")
             generated = frame[frame["scene_id"] == record["id"]].to_dict("records")
             for kind, rows in (("samples", generated), ("data", record["rows"])):
-                tiles = [render_grasp_rgb(library, hand, urdf, row, cfg.synthesis.camera) for row in rows[:16]]
+                tiles = [render_grasp_rgb(library, hand, urdf, row, cfg.synthesis.camera)
+                         for row in rows[:cfg.synthesis.renders_per_combination]]  # the synthesis grids' size
                 if tiles:
                     tracker.log_artifact(run_id, render_grid(Path(tmp) / f"{name}_{kind}.png", tiles),
                                          "generator/samples")
