@@ -158,6 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
                                     "(partial), only other configs' outputs exist (stale), files were altered "
                                     "(corrupt), nothing exists (missing), or its upstream is not done (blocked).")
     _config_args(st)
+    st.add_argument("--json", action="store_true", help="print the same as one JSON object (stages, evaluations, the "
+                                                        "command that computes what is not current), for scripts")
 
     sub.add_parser("stages", help="show the stage DAG and what each stage does",
                    description="List the pipeline's stages in execution order with their upstream stages.")
@@ -347,6 +349,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from flows.pipeline import status
 
     cfg = _load(args, needs_device=False)  # status reads files only: a cluster's work dir, checked on a laptop
+    if args.json:
+        return _print_status_json(args, cfg)
     table = Table(title=f"multigrasp status — profile {cfg.profile}, workdir {cfg.run.workdir}")
     for col in ("stage", "state", "units"):
         table.add_column(col, no_wrap=True)
@@ -374,16 +378,43 @@ def _cmd_status(args: argparse.Namespace) -> int:
             results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
         console.print(results)
         if any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES):
-            import shlex
-
             from rich.markup import escape
 
-            # a command to paste into a shell: each value quoted where it needs it (`--set objects.user=[{name: mug,
-            # ...}]` holds spaces), and escaped for rich, which took `[mug]` of `--set objects.ood=[mug]` for a tag
-            options = ["--profile", cfg.profile] + (["--config", str(args.config)] if args.config else [])
-            options += [word for item in args.sets for word in ("--set", item)] + ["--workdir", str(cfg.run.workdir)]
-            command = shlex.join(["multigrasp", "run", "--evaluate", *options])
-            console.print(f"`{escape(command)}` computes the Table I evaluations that are not current, then the report")
+            # escaped for rich, which took `[mug]` of `--set objects.ood=[mug]` for a tag
+            console.print(f"`{escape(_evaluate_command(args, cfg))}` computes the Table I evaluations that are not "
+                          "current, then the report")
+    return 0
+
+
+def _evaluate_command(args: argparse.Namespace, cfg) -> str:
+    """``multigrasp run --evaluate`` with this command's config options, to paste into a shell: each value quoted
+    where it needs it (``--set objects.user=[{name: mug, ...}]`` holds spaces)."""
+    import shlex
+
+    options = ["--profile", cfg.profile] + (["--config", str(args.config)] if args.config else [])
+    options += [word for item in args.sets for word in ("--set", item)] + ["--workdir", str(cfg.run.workdir)]
+    return shlex.join(["multigrasp", "run", "--evaluate", *options])
+
+
+def _print_status_json(args: argparse.Namespace, cfg) -> int:
+    """``status --json``: what the tables say, as one JSON object on stdout (``stages``: name, state, done_units,
+    known_units, folder, detail; ``evaluations``: name, state, detail; ``evaluate_command``: the command that computes
+    the Table I evaluations that are not current, or null)."""
+    import dataclasses
+    import json
+
+    from flows.pipeline import status
+    from flows.report import TABLE_ONE_FILES, evaluation_status
+
+    rows = status(cfg)
+    evaluations = evaluation_status(cfg, finals={r.name: r.folder for r in rows}) \
+        if (cfg.run.workdir / "results").is_dir() else []
+    pending = not evaluations or any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES)
+    print(json.dumps({
+        "profile": cfg.profile, "workdir": str(cfg.run.workdir),
+        "stages": [{**dataclasses.asdict(row), "folder": str(row.folder) if row.folder else None} for row in rows],
+        "evaluations": [{"name": row.name, "state": row.state, "detail": row.detail} for row in evaluations],
+        "evaluate_command": _evaluate_command(args, cfg) if pending else None}, indent=2))
     return 0
 
 

@@ -281,6 +281,18 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
                       "specialists": "blocked", "reach": "blocked"}
     assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path)] + sum([["--set", s] for s in SMALL], [])) == 0
     assert "missing" in capsys.readouterr().out
+    # --json: the same states for scripts, and the command that computes the evaluations
+    import json
+    import shlex
+
+    sets = sum([["--set", s] for s in SMALL], [])
+    assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path), *sets, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert {row["name"]: row["state"] for row in report["stages"]} == states
+    assert report["workdir"] == str(tmp_path) and report["evaluations"] == []
+    assert shlex.split(report["evaluate_command"]) == ["multigrasp", "run", "--evaluate", "--profile", "smoke", *sets,
+                                                       "--workdir", str(tmp_path)]
+    assert not any(tmp_path.iterdir())  # status wrote nothing
 
 
 def test_status_shows_each_done_stage_folder_whole_on_an_80_column_terminal(smoke_runs, capsys, monkeypatch):
@@ -306,6 +318,11 @@ def test_status_shows_each_done_stage_folder_whole_on_an_80_column_terminal(smok
     for row in rows:
         assert cells[row.name] == str(Path(row.folder).relative_to(workdir))
         assert (workdir / cells[row.name] / "manifest.json").is_file()
+    import json
+
+    assert main(["status", "--profile", "smoke", "--workdir", str(workdir), "--json"]) == 0
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    assert [(s["name"], s["state"], s["folder"]) for s in stages] == [(r.name, "done", r.folder) for r in rows]
 
 
 def test_the_readme_block_that_reads_a_work_dirs_grasps_runs_on_the_smoke_run(smoke_runs):
