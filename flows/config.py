@@ -396,6 +396,12 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
     while it matches (its stage outputs are checked too)."""
     from tasks.artifacts import digest
 
+    return digest({"config": evaluation_settings(cfg, results_file), "objects.files": object_file_digests(cfg.objects)})
+
+
+def evaluation_settings(cfg: PipelineConfig, results_file: str) -> dict[str, Any]:
+    """The part of the config that :func:`evaluation_key` digests for ``results_file`` (a JSON tree); an evaluation's
+    MLflow run holds it, flattened, as its params."""
     if results_file not in EVALUATION_IGNORES:
         raise ValueError(f"unknown results file {results_file!r}")
     dump = _with_used_user_meshes(cfg.model_dump(mode="json"), cfg.objects)
@@ -404,7 +410,7 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
     dump["run"] = {k: v for k, v in dump["run"].items() if k not in _HOW_TO_RUN}
     if "specialists" in dump:
         dump["specialists"] = {k: v for k, v in dump["specialists"].items() if k not in _HOW_TO_EVALUATE}
-    return digest({"config": dump, "objects.files": object_file_digests(cfg.objects)})
+    return dump
 
 
 def _with_used_user_meshes(dump: dict[str, Any], objects: ObjectsConfig) -> dict[str, Any]:

@@ -197,7 +197,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False,
                       parent_run_id: str | None = None) -> PregraspReport:
     """Write ``results/pregrasp_<source>.json`` + ``.md`` and log both to their own MLflow run; with
     ``ablations`` (source ``generated``) also ``results/ablation_generator.json``."""
-    from flows.runtime import make_tracker
+    from flows.runtime import make_tracker, start_evaluation_run
 
     if source not in SOURCES:
         raise MultigraspError(f"unknown pre-grasp source '{source}' — choose one of {', '.join(SOURCES)}")
@@ -228,8 +228,9 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False,
         rows_for_metrics = []
 
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run(f"evaluate:pregrasp:{source}", parent_run_id, tags={"command": "evaluate", "evaluation": "pregrasp",
-                                                                     "source": source, "profile": cfg.profile, **tags})
+    run_id = start_evaluation_run(tracker, cfg, f"evaluate:pregrasp:{source}", f"pregrasp_{source}.json", parent_run_id,
+                                  tags={"command": "evaluate", "evaluation": "pregrasp", "source": source,
+                                        "profile": cfg.profile, **tags})
     metrics = {f"{row['setting']}/{key}": row[key] for row in rows + rows_for_metrics
                for key in ("q1", "pn_mm", "div_deg", "accept_rate", "n", "time_256_s", "q1_all", "pn_mm_all")
                if row.get(key) is not None}

@@ -556,7 +556,7 @@ def _evaluate_settings(cfg: PipelineConfig, ablations: bool, outputs: dict, scra
 def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: list, gifs: list,
                      ablations: bool, parent_run_id: str | None = None) -> ExecutionReport:
     """The execution tables (JSON, markdown) under ``results/`` and their MLflow run."""
-    from flows.runtime import make_tracker
+    from flows.runtime import make_tracker, start_evaluation_run
 
     stage = cfg.specialists
     results = cfg.run.workdir / "results"
@@ -575,8 +575,8 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     markdown_path = atomic_write_text(results / "execution.md", markdown)
 
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run("evaluate:execution", parent_run_id, tags={"command": "evaluate", "evaluation": "execution",
-                                                           "profile": cfg.profile})
+    run_id = start_evaluation_run(tracker, cfg, "evaluate:execution", "execution.json", parent_run_id,
+                                  tags={"command": "evaluate", "evaluation": "execution", "profile": cfg.profile})
     tracker.log_metrics(run_id, {f"{r['setting']}/succ": r["succ"] for r in rows + ablation if r["succ"] is not None})
     for path in (json_path, ablation_path, markdown_path):
         tracker.log_artifact(run_id, path, "results")

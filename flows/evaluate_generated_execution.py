@@ -58,7 +58,7 @@ def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None 
     from components.hand import HandModel
     from components.objects import ObjectLibrary
     from flows.evaluate_generated import load_generator_for
-    from flows.runtime import make_console, make_tracker
+    from flows.runtime import make_console, make_tracker, start_evaluation_run
     from tasks.preflight import cache_dir
     from tasks.synthesize import read_scene_records
 
@@ -82,9 +82,9 @@ def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None 
     markdown = generated_execution_markdown(rows)
     markdown_path = atomic_write_text(results / "execution_generated.md", markdown)
     tracker = make_tracker(cfg)
-    run_id = tracker.start_run("evaluate:execution:generated", parent_run_id,
-                               tags={"command": "evaluate", "evaluation": "execution", "source": "generated",
-                                     "profile": cfg.profile})
+    run_id = start_evaluation_run(tracker, cfg, "evaluate:execution:generated", "execution_generated.json",
+                                  parent_run_id, tags={"command": "evaluate", "evaluation": "execution",
+                                                       "source": "generated", "profile": cfg.profile})
     metrics = {f"{r['setting']}/{key}": r[key] for r in rows for key in ("succ", "kept", "w/o RL", SQUEEZE_ROW)
                if r.get(key) is not None}
     tracker.log_metrics(run_id, metrics)

@@ -334,6 +334,18 @@ def stage_params(cfg: PipelineConfig, settings: Sequence[str]) -> dict[str, str]
     return params
 
 
+def start_evaluation_run(tracker: Tracker, cfg: PipelineConfig, name: str, results_file: str,
+                         parent_run_id: str | None, tags: dict[str, str]) -> str:
+    """An evaluation's MLflow run with the settings its figures can depend on as params
+    (:func:`flows.config.evaluation_settings`) and their digest as the ``config_key`` tag, as its results file holds
+    it: a ``multigrasp evaluate`` alone is a top-level run, which had no params to compare by."""
+    from flows.config import evaluation_key, evaluation_settings
+
+    run_id = tracker.start_run(name, parent_run_id, tags={**tags, "config_key": evaluation_key(cfg, results_file)})
+    tracker.log_params(run_id, flatten(evaluation_settings(cfg, results_file)))
+    return run_id
+
+
 def start_stage_run(tracker: Tracker, cfg: PipelineConfig, stage: str, settings: Sequence[str],
                     parent_run_id: str) -> str:
     """A stage's MLflow run, a child of the invocation's, with the settings it reads as params: the parent holds the

@@ -155,6 +155,16 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     nested = [r for r in runs if r.info.run_name.startswith("evaluate:") or r.info.run_name == "report"]
     parents = {r.data.tags.get("mlflow.parentRunId") for r in nested}
     assert len(nested) == 5 and len(parents) == 1 and client.get_run(parents.pop()).info.run_name == "run:smoke"
+    # each evaluation's run: the settings its figures depend on as params, their digest as its results file's key
+    files = {"evaluate:pregrasp:synthetic": "pregrasp_synthetic.json", "evaluate:pregrasp:generated":
+             "pregrasp_generated.json", "evaluate:execution": "execution.json",
+             "evaluate:execution:generated": "execution_generated.json"}
+    for run in nested:
+        if run.info.run_name in files:
+            written_key = json.loads((results / files[run.info.run_name]).read_text())["config_key"]
+            assert run.data.tags["config_key"] == written_key
+            assert run.data.params["objects.train"] and "run.workdir" not in run.data.params
+            assert ("specialists.eval_trials" in run.data.params) == run.info.run_name.startswith("evaluate:execution")
 
     assert main(argv) == 0
     assert "0 evaluation(s) computed" in capsys.readouterr().err
