@@ -479,7 +479,7 @@ def config_yaml(cfg: PipelineConfig, key: str | None = None, describe: bool = Fa
     path: list[str] = []
     for part in key.split(".") if key else []:
         if isinstance(node, Section) and part in type(node).model_fields:
-            node = getattr(node, part)
+            node = _portable(node, part, getattr(node, part))
         elif isinstance(node, (list, tuple)) and part.isdigit() and int(part) < len(node):
             node = node[int(part)]
         else:
@@ -516,7 +516,18 @@ def _section_lines(section: Section, depth: int, describe: bool, lines: list[str
             lines.append(f"{indent}{name}:")
             _section_lines(value, depth + 1, describe, lines)
         else:
-            lines.append(f"{indent}{name}: {_flow(_plain(value))}")
+            lines.append(f"{indent}{name}: {_flow(_plain(_portable(section, name, value)))}")
+
+
+def _portable(section: Section, name: str, value: Any) -> Any:
+    """``run.workdir`` under the working directory as a relative path, which a config file means the same way
+    (``./runs`` wherever the command runs), so a printed config does not pin the folder it was printed in."""
+    if isinstance(section, RunConfig) and name == "workdir":
+        try:
+            return Path(value).relative_to(Path.cwd())
+        except ValueError:
+            return value
+    return value
 
 
 def _plain(value: Any) -> Any:

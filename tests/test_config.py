@@ -370,3 +370,25 @@ def test_config_command_with_an_unknown_key_is_one_line_naming_the_nearest(capsy
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown config key 'synthesis.optimiser'" in err
     assert "did you mean 'synthesis.optimizer'?" in err
+
+
+def test_a_printed_config_means_the_same_from_another_folder(tmp_path, capsys, monkeypatch):
+    """The work dir under the folder it was printed in is written relative (``./runs`` wherever the command runs, as
+    the default means it), a user mesh by its absolute path: read back from elsewhere, it is that folder's config."""
+    import trimesh
+
+    from flows.cli import main
+
+    first, second = tmp_path / "first", tmp_path / "second"
+    (first / "meshes").mkdir(parents=True)
+    second.mkdir()
+    trimesh.creation.cylinder(radius=0.03, height=0.08).export(first / "meshes" / "cup.stl")
+    (first / "my.yaml").write_text("objects:\n  user:\n    - {name: cup, mesh: meshes/cup.stl}\n")
+    monkeypatch.chdir(first)
+    assert main(["config", "--config", "my.yaml", "--set", "run.seed=4"]) == 0
+    (tmp_path / "printed.yaml").write_text(capsys.readouterr().out)
+    monkeypatch.chdir(second)
+    expected = load_config("smoke", first / "my.yaml", ["run.seed=4"])
+    read_back = load_config("smoke", tmp_path / "printed.yaml")
+    assert read_back == expected and read_back.run.workdir == second / "runs"
+    assert read_back.objects.user[0].mesh == first / "meshes" / "cup.stl"
