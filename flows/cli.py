@@ -621,10 +621,9 @@ def main(argv: list[str] | None = None) -> int:
         # torchrl's own handler prints INFO lines ("Initialized LazyTensorStorage ...") into every PPO training; its
         # level is read from this at import, also in worker processes
         os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")
-    logging.basicConfig(level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    from flows.library_logs import quiet_handled_warnings
+    from flows.library_logs import configure_console_logging, quiet_handled_warnings
 
+    configure_console_logging(getattr(args, "verbose", False))
     quiet_handled_warnings()
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)

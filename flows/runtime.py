@@ -334,6 +334,14 @@ def stage_params(cfg: PipelineConfig, settings: Sequence[str]) -> dict[str, str]
     return params
 
 
+def unit_task(task):
+    """``task`` (a unit task of ``tasks/``, whose first parameter is its ``spec``) with its runs named after their
+    unit, ``synthesize/shard-Pl:cube+mug:0`` instead of Prefect's ``synthesize-shard-3e1``, in Prefect's log lines
+    (``--verbose``) and in the UI of a shared Prefect server.  Named here, not in ``tasks/``, whose code is part of
+    the stages' cache keys; the name is not (:class:`tasks.units.VerifiedUnitCache` keys on the spec alone)."""
+    return task.with_options(task_run_name="{spec.label}")
+
+
 def start_evaluation_run(tracker: Tracker, cfg: PipelineConfig, name: str, results_file: str,
                          parent_run_id: str | None, tags: dict[str, str]) -> str:
     """An evaluation's MLflow run with the settings its figures can depend on as params

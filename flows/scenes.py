@@ -5,7 +5,7 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.tracking import Tracker
 from tasks.artifacts import Manifest, code_version
@@ -73,11 +73,11 @@ def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Man
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, run_id, uri)
     progress = StageProgress(make_console(), STAGE, total=len(plan) + 1)
-    futures = [scenes_shard_task.submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
+    futures = [unit_task(scenes_shard_task).submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
                for spec, jobs in plan]
     return shards_then_merge(
         STAGE, futures,
-        lambda shards: scenes_merge_task.submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.scenes, cfg.objects,
+        lambda shards: unit_task(scenes_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.scenes, cfg.objects,
                                                 cfg.hand, cfg.tracking.renders),
         progress, run_id)
 

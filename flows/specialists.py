@@ -11,7 +11,7 @@ from components.execution.clustering import assign_bins
 from components.execution.ppo_config import EXTENDABLE_FIELDS
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
+from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
                            merge_unit_spec, planned_shards_and_merge, shards_then_merge)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task, training_digest
@@ -93,9 +93,9 @@ def specialists_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str
                       f"splits {stage.splits} — see its report.md")
     encoder = str(upstream["pointnet"].path("encoder"))
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [train_bin_task.submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
+    futures = [unit_task(train_bin_task).submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
                for spec, label, chunk in plan]
-    return shards_then_merge(STAGE, futures, lambda bins: merge_task.submit(merge_spec(cfg, bins, run_id, uri), bins),
+    return shards_then_merge(STAGE, futures, lambda bins: unit_task(merge_task).submit(merge_spec(cfg, bins, run_id, uri), bins),
                              progress, run_id)
 
 

@@ -501,3 +501,36 @@ def test_prefect_shutdown_cancellations_and_user_errors_are_filtered_but_other_r
     assert keep(record("prefect.server.api", RuntimeError("real failure")))
     assert keep(logging.LogRecord("prefect.server", logging.WARNING, __file__, 1, "plain", None, None))
 
+
+
+def test_unit_task_runs_are_named_after_their_unit_and_the_console_lines_say_which_run():
+    """Prefect's task runs of a unit are named ``stage/unit`` (they were ``<task>-3e1``), and the console's log lines
+    carry the run's name, which the plain format dropped ("INFO prefect.task_runs: Finished in state Completed()")."""
+    import logging
+
+    from prefect import flow, task
+
+    from flows.library_logs import RunNameFormatter
+    from flows.runtime import unit_task
+    from tasks.units import make_spec
+
+    @task
+    def named(spec, value):
+        from prefect.runtime import task_run
+
+        return task_run.name, value
+
+    @flow
+    def one_unit(spec):
+        return unit_task(named).submit(spec, 3).result()
+
+    spec = make_spec(stage="synthesize", unit="shard-Pl:cube+mug:0", section_digest="s", upstream={}, code="c",
+                     workdir=Path("/tmp/unused"))
+    assert one_unit(spec) == ("synthesize/shard-Pl:cube+mug:0", 3)
+
+    line = logging.LogRecord("prefect.task_runs", logging.INFO, __file__, 1, "Finished in state Completed()", None, None)
+    line.task_run_name = spec.label
+    assert RunNameFormatter().format(line) == ("INFO prefect.task_runs (synthesize/shard-Pl:cube+mug:0): Finished in "
+                                               "state Completed()")
+    plain = logging.LogRecord("flows.cli", logging.WARNING, __file__, 1, "a warning", None, None)
+    assert RunNameFormatter().format(plain) == "WARNING flows.cli: a warning"
