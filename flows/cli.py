@@ -628,7 +628,8 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "verbose", False):
         logging.getLogger("mlflow").setLevel(logging.WARNING)
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # where torchrl was imported before main()
-    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "config": _cmd_config, "ui": _cmd_ui, "prune": _cmd_prune,
+    handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "config": _cmd_config, "ui": _cmd_ui,
+                "prune": _cmd_prune,
                 "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 **{name: _single_stage(name, stage) for name, stage, _ in SINGLE_STAGE_COMMANDS},

@@ -5,8 +5,8 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
-                           make_tracker, single_unit)
+from flows.runtime import (StageProgress, StageResult, log_loss_history, make_console, make_task_runner, make_tracker,
+                           single_unit, start_stage_run, unit_task)
 from tasks.artifacts import Manifest, code_version
 from tasks.pointnet import POINTNET_CODE_DIRS, pretrain_task
 from tasks.tracking import Tracker
@@ -38,8 +38,8 @@ def pointnet_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, M
     console = make_console()
     console.print(f"[bold cyan]{STAGE}[/] pre-training the encoder ({cfg.pointnet.encoder.steps} steps)")
     progress = StageProgress(console, STAGE, total=1)
-    future = unit_task(pretrain_task).submit(stage_spec(cfg, run_id, tracker.tracking_uri), cfg.pointnet, cfg.lift, cfg.objects,
-                                  cfg.hand, cfg.run.torch_threads)
+    future = unit_task(pretrain_task).submit(stage_spec(cfg, run_id, tracker.tracking_uri), cfg.pointnet, cfg.lift,
+                                             cfg.objects, cfg.hand, cfg.run.torch_threads)
     return single_unit(STAGE, future, progress, run_id)
 
 

@@ -7,8 +7,8 @@ from prefect import flow
 
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker, merge_unit_spec,
+                           planned_shards_and_merge, shards_then_merge, start_stage_run, unit_task)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.reach import REACH_CODE_DIRS, reach_merge_task, reach_shard_task
 from tasks.specialists import select_records, spread_records
@@ -65,10 +65,12 @@ def reach_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Mani
         console.print(f"[bold yellow]{STAGE}[/] no pre-grasps to reach: the synthesis stage accepted none in the "
                       f"splits {cfg.specialists.splits} — see its report.md")
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [unit_task(reach_shard_task).submit(spec, chunk, cfg.reach, cfg.lift, cfg.objects, cfg.hand) for spec, chunk in plan]
+    futures = [unit_task(reach_shard_task).submit(spec, chunk, cfg.reach, cfg.lift, cfg.objects, cfg.hand)
+               for spec, chunk in plan]
     threshold = cfg.reach.displaced_threshold_m
     return shards_then_merge(STAGE, futures,
-                             lambda shards: unit_task(reach_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards, threshold),
+                             lambda shards: unit_task(reach_merge_task).submit(merge_spec(cfg, shards, run_id, uri),
+                                                                               shards, threshold),
                              progress, run_id)
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker, merge_unit_spec,
+                           planned_shards_and_merge, shards_then_merge, start_stage_run, unit_task)
 from tasks.tracking import Tracker
 from tasks.artifacts import Manifest, code_version
 from tasks.scenes import (RENDER_CODE_DIRS, SCENES_CODE_DIRS, SPLITS, scenes_merge_task,
@@ -77,8 +77,8 @@ def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Man
                for spec, jobs in plan]
     return shards_then_merge(
         STAGE, futures,
-        lambda shards: unit_task(scenes_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.scenes, cfg.objects,
-                                                cfg.hand, cfg.tracking.renders),
+        lambda shards: unit_task(scenes_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.scenes,
+                                                           cfg.objects, cfg.hand, cfg.tracking.renders),
         progress, run_id)
 
 

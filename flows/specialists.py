@@ -11,8 +11,8 @@ from components.execution.clustering import assign_bins
 from components.execution.ppo_config import EXTENDABLE_FIELDS
 from components.execution.records import record_to_dict
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker, merge_unit_spec,
+                           planned_shards_and_merge, shards_then_merge, start_stage_run, unit_task)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.specialists import SPECIALIST_CODE_DIRS, merge_task, select_records, train_bin_task, training_digest
 from tasks.tracking import Tracker
@@ -95,7 +95,8 @@ def specialists_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
     futures = [unit_task(train_bin_task).submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
                for spec, label, chunk in plan]
-    return shards_then_merge(STAGE, futures, lambda bins: unit_task(merge_task).submit(merge_spec(cfg, bins, run_id, uri), bins),
+    return shards_then_merge(STAGE, futures,
+                             lambda bins: unit_task(merge_task).submit(merge_spec(cfg, bins, run_id, uri), bins),
                              progress, run_id)
 
 

@@ -7,8 +7,8 @@ from typing import Any
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, make_console, make_task_runner, make_tracker,
-                           merge_unit_spec, planned_shards_and_merge, shards_then_merge)
+from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker, merge_unit_spec,
+                           planned_shards_and_merge, shards_then_merge, start_stage_run, unit_task)
 from tasks.artifacts import Manifest, code_version, digest
 from tasks.synthesize import SYNTHESIS_CODE_DIRS, read_scene_records, synthesize_shard_task
 from tasks.synthesize_merge import MERGE_CODE_DIRS, synthesize_merge_task
@@ -95,13 +95,14 @@ def synthesize_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str,
     console.print(f"[bold cyan]{STAGE}[/] {scenes} scene(s) x {cfg.synthesis.optimizer.batch_size} candidates "
                   f"in {len(plan)} shard(s)")
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [unit_task(synthesize_shard_task).submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand, cfg.run.seed,
-                                            cfg.run.device, cfg.run.torch_threads)
+    futures = [unit_task(synthesize_shard_task).submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand,
+                                                       cfg.run.seed, cfg.run.device, cfg.run.torch_threads)
                for spec, chunk in plan]
     result = shards_then_merge(
         STAGE, futures,
-        lambda shards: unit_task(synthesize_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards, cfg.synthesis,
-                                                    cfg.objects, cfg.hand, cfg.tracking.renders),
+        lambda shards: unit_task(synthesize_merge_task).submit(merge_spec(cfg, shards, run_id, uri), shards,
+                                                               cfg.synthesis, cfg.objects, cfg.hand,
+                                                               cfg.tracking.renders),
         progress, run_id)
     print_report(console, result.manifest)
     return result

@@ -7,8 +7,8 @@ from pathlib import Path
 from prefect import flow
 
 from flows.config import PipelineConfig, section_digest
-from flows.runtime import (start_stage_run, unit_task, StageProgress, StageResult, log_loss_history, make_console, make_task_runner,
-                           make_tracker, single_unit)
+from flows.runtime import (StageProgress, StageResult, log_loss_history, make_console, make_task_runner, make_tracker,
+                           single_unit, start_stage_run, unit_task)
 from tasks.artifacts import Manifest, code_version, upstream_hashes
 from tasks.generator import GENERATOR_CODE_DIRS, train_task
 from tasks.tracking import Tracker
@@ -45,8 +45,9 @@ def train_generator_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict
     console.print(f"[bold cyan]{STAGE}[/] {cfg.generator.model.train_steps} steps, batch {cfg.generator.model.batch_size} "
                   f"({cfg.generator.records_source} grasps of {cfg.generator.splits})")
     progress = StageProgress(console, STAGE, total=1)
-    future = unit_task(train_task).submit(stage_spec(cfg, upstream["synthesize"], run_id, tracker.tracking_uri), upstream["synthesize"],
-                               cfg.generator, cfg.objects, cfg.hand, cfg.run.device, cfg.run.torch_threads)
+    future = unit_task(train_task).submit(stage_spec(cfg, upstream["synthesize"], run_id, tracker.tracking_uri),
+                                          upstream["synthesize"], cfg.generator, cfg.objects, cfg.hand, cfg.run.device,
+                                          cfg.run.torch_threads)
     result = single_unit(STAGE, future, progress, run_id)
     if not result.fully_cached and cfg.tracking.renders and cfg.tracking.generator_sample_scenes:
         try:
