@@ -240,6 +240,17 @@ def build_parser() -> argparse.ArgumentParser:
                                     "command for any that has not run. Nothing is recomputed.")
     rp.add_argument("--workdir", type=Path, default=Path("runs"), help="work directory (default ./runs)")
 
+    cp = sub.add_parser("compare", help="several work dirs' evaluation results side by side, with the paper's",
+                        description="Read the evaluation results of each work dir (what `multigrasp report` reads) and "
+                                    "print one markdown table: a row per figure any of them has, a column per work "
+                                    "dir, the paper's last. For variants run in separate work dirs (each has its own "
+                                    "MLflow store; variants in one work dir compare in its MLflow UI). Nothing is "
+                                    "recomputed.")
+    cp.add_argument("workdirs", type=Path, nargs="+", metavar="WORKDIR", help="work directories to compare")
+    cp.add_argument("--label", dest="labels", action="append", default=[], metavar="NAME",
+                    help="column name of each work dir, in order (default: the folder names); repeat per work dir")
+    cp.add_argument("--out", type=Path, metavar="FILE", help="also write the table to this markdown file")
+
     pr = sub.add_parser("prune", help="delete the stage outputs that no kept config uses (dry run unless --yes)",
                         description="List, then with --yes delete, the unit folders under <workdir>/stages/ that the "
                                     "named configs do not use now: outputs of changed settings, of other profiles, "
@@ -432,6 +443,17 @@ def _cmd_report(args: argparse.Namespace) -> int:
     report = write_report(args.workdir)
     print(report.markdown)
     print(f"written: {report.path}  {report.csv_path}  (MLflow run {report.run_id})")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from flows.report import compare_markdown
+    from tasks.artifacts import atomic_write_text
+
+    markdown = compare_markdown(args.workdirs, args.labels or None)
+    print(markdown, end="")
+    if args.out:
+        print(f"written: {atomic_write_text(args.out, markdown)}")
     return 0
 
 
@@ -629,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("mlflow").setLevel(logging.WARNING)
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # where torchrl was imported before main()
     handlers = {"run": _cmd_run, "status": _cmd_status, "stages": _cmd_stages, "config": _cmd_config, "ui": _cmd_ui,
-                "prune": _cmd_prune,
+                "prune": _cmd_prune, "compare": _cmd_compare,
                 "report": _cmd_report,
                 "bench": _cmd_bench, "evaluate": _cmd_evaluate, "generate": _cmd_generate,
                 **{name: _single_stage(name, stage) for name, stage, _ in SINGLE_STAGE_COMMANDS},

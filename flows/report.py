@@ -144,14 +144,8 @@ def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: di
 def write_report(workdir: Path, parent_run_id: str | None = None, experiment: str | None = None) -> Report:
     """Write ``<workdir>/results/report.md`` from the evaluation results there (module docstring)."""
     results = Path(workdir) / "results"
-    if not results.is_dir():
-        raise MultigraspError(f"no results in {workdir} (no results/ folder) — run `multigrasp evaluate …` first, or "
-                              "pass the --workdir that holds them")
-    data = {name: _load(results, name) for name in SOURCES}
+    data = _results(workdir)
     missing = [name for name, value in data.items() if value is None]
-    if len(missing) == len(SOURCES):
-        raise MultigraspError(f"no evaluation results in {results} — run `{SOURCES['pregrasp_synthetic.json']}` (and "
-                              "the other `multigrasp evaluate` commands) first")
     pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
     execution = {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])}
     ablation_execution = _rows(data["ablation_execution.json"])
@@ -186,6 +180,80 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
                                                                     marked, ablation_source, syn_source))
     return Report(path=path, markdown=markdown, missing=missing, csv_path=csv_path,
                   run_id=_log_report(workdir, path, csv_path, data, parent_run_id, experiment))
+
+
+def _results(workdir: Path) -> dict[str, dict[str, Any] | None]:
+    """Every results file of ``workdir/results`` (None where missing), or a one-line error where there is none."""
+    results = Path(workdir) / "results"
+    if not results.is_dir():
+        raise MultigraspError(f"no results in {workdir} (no results/ folder) — run `multigrasp evaluate …` first, or "
+                              "point at the work dir that holds them")
+    data = {name: _load(results, name) for name in SOURCES}
+    if all(value is None for value in data.values()):
+        raise MultigraspError(f"no evaluation results in {results} — run `{SOURCES['pregrasp_synthetic.json']}` (and "
+                              "the other `multigrasp evaluate` commands) first")
+    return data
+
+
+def figures(workdir: Path) -> list[dict[str, str]]:
+    """The rows of ``workdir``'s report as :func:`report_csv` writes them (``table``, ``setting``, ``metric``,
+    ``here``, ``paper``, ``note``), read from its results files; nothing is written."""
+    import csv
+    import io
+
+    data = _results(workdir)
+    pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
+    execution = {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])}
+    syn_source = plumbing_only(data["execution.json"])
+    marked = frozenset(_rows(data["execution.json"])) if syn_source else frozenset()
+    text = report_csv(pregrasp, execution, _rows(data["ablation_execution.json"]),
+                      _rows(data["ablation_generator.json"]), marked, plumbing_only(data["ablation_execution.json"]),
+                      syn_source)
+    return list(csv.DictReader(io.StringIO(text)))
+
+
+def compare_markdown(workdirs: list[Path], labels: list[str] | None = None) -> str:
+    """Several work dirs' report figures side by side: one row per figure that any of them has (table, setting,
+    metric), one column per work dir (its folder name, or ``labels``), and the paper's.  A figure lifted from
+    unaccepted candidates (the smoke profile's plumbing check) carries a †.  Nothing is recomputed or written."""
+    labels = labels or [Path(w).name or str(w) for w in workdirs]
+    if len(labels) != len(workdirs):
+        raise MultigraspError(f"--label was given {len(labels)} time(s) for {len(workdirs)} work dir(s); give one per "
+                              "work dir, in the same order, or none")
+    tables = [{(r["table"], r["setting"], r["metric"]): r for r in figures(w)} for w in workdirs]
+    keys = list(dict.fromkeys(k for table in tables for k in table))
+    lines = ["# Work dirs compared", "",
+             "One column per work dir (its `results/`, as `multigrasp report` reads it), the paper's last. `–`: not "
+             "measured there. †: lifted from unaccepted candidates (a plumbing check, not a result).", "",
+             "| table | setting | metric | " + " | ".join(labels) + " | paper |",
+             "|---|---|---|" + "---|" * len(labels) + "---|"]
+    for key in keys:
+        cells = []
+        for table in tables:
+            row = table.get(key)
+            value = row["here"] if row else ""
+            dagger = " †" if row and row["note"] and value else ""
+            cells.append((_figure(key[2], value) or "–") + dagger)
+        if all(cell == "–" for cell in cells):
+            continue
+        paper = next((t[key]["paper"] for t in tables if key in t and t[key]["paper"]), "")
+        lines.append(f"| {key[0]} | {key[1]} | {key[2]} | " + " | ".join(cells) + f" | {_figure(key[2], paper) or '–'} |")
+    lines += ["", "Work dirs: " + "; ".join(f"{label} = `{Path(w).resolve()}` (profile {_profiles(w)})"
+                                            for label, w in zip(labels, workdirs))]
+    return "\n".join(lines) + "\n"
+
+
+def _figure(metric: str, value: str) -> str:
+    """A CSV figure as the report prints it: rates as percentages, the rest as written."""
+    if not value or metric not in ("succ", "accept_rate"):
+        return value
+    return _pct(float(value))
+
+
+def _profiles(workdir: Path) -> str:
+    """The profiles the results files of ``workdir`` were evaluated under, in order of first appearance."""
+    found = [value.get("profile", "?") for value in _results(workdir).values() if value is not None]
+    return ", ".join(dict.fromkeys(found))
 
 
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],

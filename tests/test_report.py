@@ -249,3 +249,40 @@ def test_run_evaluate_plans_the_ablations_only_when_asked_and_redoes_a_partial_a
     assert [e.label for e, _ in pending_evaluations(cfg, ablations=False)] == []
     assert [e.label for e, _ in pending_evaluations(cfg, ablations=True)] == [
         "evaluate pregrasp --source generated --ablations", "evaluate execution --ablations"]
+
+
+def test_compare_puts_work_dirs_side_by_side_with_the_papers_figures(tmp_path, capsys):
+    """`multigrasp compare A B`: a row per figure either has, a column per work dir, the paper's last; rates as
+    percentages; a success lifted from unaccepted candidates marked †; --out writes the same table."""
+    from flows.cli import main
+
+    a, b = tmp_path / "friction05", tmp_path / "friction02"
+    _write(a / "results", "pregrasp_synthetic.json", [{"setting": "Syn-Pl", "q1": 0.085, "pn_mm": 1.13,
+                                                      "div_deg": 14.4, "accept_rate": 0.447, "n": 1144}])
+    _write(a / "results", "execution.json", [{"setting": "Syn-Pl", "succ": 0.346, "n_poses": 100, "trials": 5}])
+    _write(b / "results", "pregrasp_synthetic.json", [{"setting": "Syn-Pl", "q1": 0.122, "pn_mm": 1.34,
+                                                      "div_deg": 15.0, "accept_rate": 0.156, "n": 400}], profile="mini")
+    (b / "results" / "execution.json").write_text(json.dumps({
+        "rows": [{"setting": "Syn-Pl", "succ": 0.498, "n_poses": 100, "trials": 5}], "profile": "smoke",
+        "records_source": "lowest_energy"}))
+    out = tmp_path / "compare.md"
+    assert main(["compare", str(a), str(b), "--label", "mu 0.5", "--label", "mu 0.2", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| table | setting | metric | mu 0.5 | mu 0.2 | paper |" in printed
+    assert "| I | Syn-Pl | q1 | 0.085 | 0.122 | 0.3 |" in printed
+    assert "| I | Syn-Pl | accept_rate | 44.7 % | 15.6 % | – |" in printed
+    assert "| I | Syn-Pl | succ | 34.6 % | 49.8 % † | 68.3 % |" in printed
+    assert "| I | Gen-Pl |" not in printed  # measured in neither
+    assert f"mu 0.2 = `{b.resolve()}` (profile mini, smoke)" in printed
+    assert out.read_text() in printed
+
+
+def test_compare_names_a_work_dir_without_results_and_a_wrong_label_count(tmp_path, capsys):
+    from flows.cli import main
+
+    _write(tmp_path / "a" / "results", "execution.json", [{"setting": "Syn-Pl", "succ": 0.3}])
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"no results in {tmp_path / 'nothing'}" in err
+    assert main(["compare", str(tmp_path / "a"), "--label", "x", "--label", "y"]) == 2
+    assert "--label was given 2 time(s) for 1 work dir(s)" in capsys.readouterr().err
