@@ -159,12 +159,16 @@ def generate(cfg: PipelineConfig, objects: list[str], n: int, palm_direction_deg
 def _log_generate(cfg: PipelineConfig, report: GenerateReport, scene, seed: int, generator) -> str:
     """An MLflow run ``generate:<objects>`` with the grasps, their render and, with ``--lift``, the lift's rates
     and GIFs, as ``evaluate`` logs its tables."""
+    from flows.config import evaluation_settings
     from flows.runtime import make_tracker
+    from tasks.tracking import flatten
 
     tracker = make_tracker(cfg)
     run_id = tracker.start_run(f"generate:{'+'.join(scene.names)}",
                                tags={"command": "generate", "objects": "+".join(scene.names), "seed": str(seed),
                                      "profile": cfg.profile, "generator_run": generator.producer_run_id or ""})
+    # the settings of the generated and lifted grasps (all but where and how it runs), to compare two generate runs
+    tracker.log_params(run_id, flatten(evaluation_settings(cfg, "execution_generated.json")))
     metrics = {"generated": report.n, "kept": report.kept, "depth_before_mm": report.depth_before_mm,
                "depth_after_mm": report.depth_after_mm, **report.seconds}
     if report.lift is not None:

@@ -66,6 +66,12 @@ def test_generate_for_an_object_the_generator_never_saw(trained):
     assert first["q1"] >= 0.0 and 0.0 <= first["contact_ratio"] <= 1.0 and isinstance(first["kept"], bool)
     assert (folder / "grasps.png").is_file()
     assert json.loads((folder / "scene.json").read_text())["objects"][1]["name"] == "block"
+    from mlflow.tracking import MlflowClient  # its MLflow run holds the settings it generated under
+
+    client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
+    run = client.search_runs([client.get_experiment_by_name("multigrasp").experiment_id],
+                             filter_string="tags.command = 'generate'", order_by=["attributes.start_time DESC"])[0]
+    assert run.data.params["generator.refine.fc_steps"] == "2" and "run.workdir" not in run.data.params
     # --placement: the same scene again, from the scene.json that generate wrote
     assert main(["generate", "--placement", str(folder / "scene.json"), "--n", "1", "--seed", "1", *base]) == 0
     again = [f for f in (workdir / "results" / "generated").iterdir() if f != folder]
