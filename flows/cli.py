@@ -349,8 +349,19 @@ def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | N
         console.print(f"tables:    {where} ({evaluated} evaluation(s) computed; the paper's figures beside "
                       "each cell; JSON and markdown per evaluation beside it)")
     console.print(f"MLflow:    parent run {ctx.parent_run_id} in {ctx.tracking_uri}")
-    console.print(f"open UI:   {ui_command(cfg.run.workdir)}   → http://127.0.0.1:{DEFAULT_UI_PORT}")
+    link = run_url(ctx.tracking_uri, ctx.tracker.experiment_id, ctx.parent_run_id)
+    if ctx.tracking_uri.startswith(("http://", "https://")):
+        console.print(f"open UI:   {link}   (this run)")
+    else:
+        console.print(f"open UI:   {ui_command(cfg.run.workdir)}   → {link}   (this run)")
     return 0
+
+
+def run_url(tracking_uri: str, experiment_id: str, run_id: str, port: int = DEFAULT_UI_PORT) -> str:
+    """The MLflow UI's page of a run: on the tracking server where ``MLFLOW_TRACKING_URI`` names one, else on the
+    server `multigrasp ui` starts (127.0.0.1:``port``)."""
+    base = tracking_uri.rstrip("/") if tracking_uri.startswith(("http://", "https://")) else f"http://{UI_HOST}:{port}"
+    return f"{base}/#/experiments/{experiment_id}/runs/{run_id}"
 
 
 def _cmd_status(args: argparse.Namespace) -> int:

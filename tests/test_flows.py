@@ -155,6 +155,16 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     nested = [r for r in runs if r.info.run_name.startswith("evaluate:") or r.info.run_name == "report"]
     parents = {r.data.tags.get("mlflow.parentRunId") for r in nested}
     assert len(nested) == 5 and len(parents) == 1 and client.get_run(parents.pop()).info.run_name == "run:smoke"
+    # the closing lines link this invocation's run in the UI that `multigrasp ui` starts
+    import re
+
+    (experiment_id, run_id), = re.findall(r"http://127\.0\.0\.1:5000/#/experiments/(\w+)/runs/(\w+)   \(this run\)",
+                                          first)
+    linked = client.get_run(run_id)
+    assert linked.info.run_name == "run:smoke" and linked.info.experiment_id == experiment_id
+    from flows.cli import run_url
+
+    assert run_url("http://mlflow:5000/", "3", "abc") == "http://mlflow:5000/#/experiments/3/runs/abc"
     # each evaluation's run: the settings its figures depend on as params, their digest as its results file's key
     files = {"evaluate:pregrasp:synthetic": "pregrasp_synthetic.json", "evaluate:pregrasp:generated":
              "pregrasp_generated.json", "evaluate:execution": "execution.json",
