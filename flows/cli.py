@@ -369,10 +369,15 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from flows.pipeline import status
+    from flows.report import TABLE_ONE_FILES, evaluation_status
 
     cfg = _load(args, needs_device=False)  # status reads files only: a cluster's work dir, checked on a laptop
+    rows = status(cfg)
+    has_results = (cfg.run.workdir / "results").is_dir()
+    evaluations = evaluation_status(cfg, finals={r.name: r.folder for r in rows}) if has_results else []  # verified once
+    pending = any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES)
     if args.json:
-        return _print_status_json(args, cfg)
+        return _print_status_json(args, cfg, rows, evaluations, pending or not has_results)
     table = Table(title=f"multigrasp status — profile {cfg.profile}, workdir {cfg.run.workdir}")
     for col in ("stage", "state", "units"):
         table.add_column(col, no_wrap=True)
@@ -382,24 +387,20 @@ def _cmd_status(args: argparse.Namespace) -> int:
     table.add_column("note")
     colors = {"done": "green", "partial": "yellow", "stale": "magenta", "corrupt": "red", "missing": "white",
               "blocked": "dim"}
-    rows = status(cfg)
     for row in rows:
         table.add_row(row.name, f"[{colors[row.state]}]{row.state}[/]", f"{row.done_units}/{row.known_units}",
                       _within(row.folder, cfg.run.workdir) if row.folder else "-", row.detail)
     console = Console()
     console.print(table)
-    if (cfg.run.workdir / "results").is_dir():
-        from flows.report import TABLE_ONE_FILES, evaluation_status
-
+    if has_results:
         results = Table(title=f"evaluations in {cfg.run.workdir / 'results'}")
         for col in ("results file", "state", "note"):
             results.add_column(col)
         shades = {"current": "green", "stale": "magenta", "unknown": "yellow", "missing": "white"}
-        evaluations = evaluation_status(cfg, finals={r.name: r.folder for r in rows})  # verified once, above
         for row in evaluations:
             results.add_row(row.name, f"[{shades[row.state]}]{row.state}[/]", row.detail)
         console.print(results)
-        if any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES):
+        if pending:
             from rich.markup import escape
 
             # escaped for rich, which took `[mug]` of `--set objects.ood=[mug]` for a tag
@@ -418,20 +419,13 @@ def _evaluate_command(args: argparse.Namespace, cfg) -> str:
     return shlex.join(["multigrasp", "run", "--evaluate", *options])
 
 
-def _print_status_json(args: argparse.Namespace, cfg) -> int:
+def _print_status_json(args: argparse.Namespace, cfg, rows: list, evaluations: list, pending: bool) -> int:
     """``status --json``: what the tables say, as one JSON object on stdout (``stages``: name, state, done_units,
     known_units, folder, detail; ``evaluations``: name, state, detail; ``evaluate_command``: the command that computes
     the Table I evaluations that are not current, or null)."""
     import dataclasses
     import json
 
-    from flows.pipeline import status
-    from flows.report import TABLE_ONE_FILES, evaluation_status
-
-    rows = status(cfg)
-    evaluations = evaluation_status(cfg, finals={r.name: r.folder for r in rows}) \
-        if (cfg.run.workdir / "results").is_dir() else []
-    pending = not evaluations or any(row.state != "current" for row in evaluations if row.name in TABLE_ONE_FILES)
     print(json.dumps({
         "profile": cfg.profile, "workdir": str(cfg.run.workdir),
         "stages": [{**dataclasses.asdict(row), "folder": str(row.folder) if row.folder else None} for row in rows],

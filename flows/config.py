@@ -544,19 +544,7 @@ def _plain(value: Any) -> Any:
 
 
 def _flow(value: Any) -> str:
-    """One value in YAML flow syntax: JSON, except that YAML spells infinities and NaN its own way."""
-    import json
-    import math
-
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
-        text = repr(value)
-        mantissa, e, exponent = text.partition("e")
-        # YAML 1.1 (PyYAML) reads 1e-06 as a string: a float's mantissa needs its point
-        return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{json.dumps(k)}: {_flow(v)}" for k, v in value.items()) + "}"
-    if isinstance(value, list):
-        return "[" + ", ".join(_flow(v) for v in value) + "]"
-    return json.dumps(value)
+    """One value on one line, in PyYAML's flow style (which quotes strings that would read as something else, and
+    writes a float so that it reads back as one: ``1.0e-06``, not ``1e-06``, which YAML 1.1 reads as a string)."""
+    text = yaml.safe_dump(value, default_flow_style=True, width=float("inf"), sort_keys=False, allow_unicode=True)
+    return text.removesuffix("\n...\n").strip()

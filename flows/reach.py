@@ -65,7 +65,8 @@ def reach_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Mani
         console.print(f"[bold yellow]{STAGE}[/] no pre-grasps to reach: the synthesis stage accepted none in the "
                       f"splits {cfg.specialists.splits} — see its report.md")
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [unit_task(reach_shard_task).submit(spec, chunk, cfg.reach, cfg.lift, cfg.objects, cfg.hand)
+    shard = unit_task(reach_shard_task)  # named once, for every unit
+    futures = [shard.submit(spec, chunk, cfg.reach, cfg.lift, cfg.objects, cfg.hand)
                for spec, chunk in plan]
     threshold = cfg.reach.displaced_threshold_m
     return shards_then_merge(STAGE, futures,

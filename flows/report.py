@@ -146,6 +146,7 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
     results = Path(workdir) / "results"
     data = _results(workdir)
     missing = [name for name, value in data.items() if value is None]
+    csv_text = _csv_of(data)
     pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
     execution = {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])}
     ablation_execution = _rows(data["ablation_execution.json"])
@@ -175,9 +176,7 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
         lines += ["", _plumbing_note(ablation_source or syn_source)]
     markdown = "\n".join(lines) + "\n"
     path = atomic_write_text(results / "report.md", markdown)
-    csv_path = atomic_write_text(results / "report.csv", report_csv(pregrasp, execution, ablation_execution,
-                                                                    _rows(data["ablation_generator.json"]),
-                                                                    marked, ablation_source, syn_source))
+    csv_path = atomic_write_text(results / "report.csv", csv_text)
     return Report(path=path, markdown=markdown, missing=missing, csv_path=csv_path,
                   run_id=_log_report(workdir, path, csv_path, data, parent_run_id, experiment))
 
@@ -195,21 +194,23 @@ def _results(workdir: Path) -> dict[str, dict[str, Any] | None]:
     return data
 
 
-def figures(workdir: Path) -> list[dict[str, str]]:
-    """The rows of ``workdir``'s report as :func:`report_csv` writes them (``table``, ``setting``, ``metric``,
-    ``here``, ``paper``, ``note``), read from its results files; nothing is written."""
+def _csv_of(data: dict[str, dict[str, Any] | None]) -> str:
+    """:func:`report_csv` of a work dir's results files (:func:`_results`)."""
+    syn_source = plumbing_only(data["execution.json"])
+    return report_csv({**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])},
+                      {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])},
+                      _rows(data["ablation_execution.json"]), _rows(data["ablation_generator.json"]),
+                      frozenset(_rows(data["execution.json"])) if syn_source else frozenset(),
+                      plumbing_only(data["ablation_execution.json"]), syn_source)
+
+
+def figures(data: dict[str, dict[str, Any] | None]) -> list[dict[str, str]]:
+    """The rows of a work dir's report (``table``, ``setting``, ``metric``, ``here``, ``paper``, ``note``; its
+    ``report.csv``) from its results files (:func:`_results`); nothing is written."""
     import csv
     import io
 
-    data = _results(workdir)
-    pregrasp = {**_rows(data["pregrasp_synthetic.json"]), **_rows(data["pregrasp_generated.json"])}
-    execution = {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])}
-    syn_source = plumbing_only(data["execution.json"])
-    marked = frozenset(_rows(data["execution.json"])) if syn_source else frozenset()
-    text = report_csv(pregrasp, execution, _rows(data["ablation_execution.json"]),
-                      _rows(data["ablation_generator.json"]), marked, plumbing_only(data["ablation_execution.json"]),
-                      syn_source)
-    return list(csv.DictReader(io.StringIO(text)))
+    return list(csv.DictReader(io.StringIO(_csv_of(data))))
 
 
 def compare_markdown(workdirs: list[Path], labels: list[str] | None = None) -> str:
@@ -220,7 +221,8 @@ def compare_markdown(workdirs: list[Path], labels: list[str] | None = None) -> s
     if len(labels) != len(workdirs):
         raise MultigraspError(f"--label was given {len(labels)} time(s) for {len(workdirs)} work dir(s); give one per "
                               "work dir, in the same order, or none")
-    tables = [{(r["table"], r["setting"], r["metric"]): r for r in figures(w)} for w in workdirs]
+    results = [_results(w) for w in workdirs]  # each work dir's files read once
+    tables = [{(r["table"], r["setting"], r["metric"]): r for r in figures(data)} for data in results]
     keys = list(dict.fromkeys(k for table in tables for k in table))
     lines = ["# Work dirs compared", "",
              "One column per work dir (its `results/`, as `multigrasp report` reads it), the paper's last. `–`: not "
@@ -238,8 +240,8 @@ def compare_markdown(workdirs: list[Path], labels: list[str] | None = None) -> s
             continue
         paper = next((t[key]["paper"] for t in tables if key in t and t[key]["paper"]), "")
         lines.append(f"| {key[0]} | {key[1]} | {key[2]} | " + " | ".join(cells) + f" | {_figure(key[2], paper) or '–'} |")
-    lines += ["", "Work dirs: " + "; ".join(f"{label} = `{Path(w).resolve()}` (profile {_profiles(w)})"
-                                            for label, w in zip(labels, workdirs))]
+    lines += ["", "Work dirs: " + "; ".join(f"{label} = `{Path(w).resolve()}` (profile {_profiles(data)})"
+                                            for label, w, data in zip(labels, workdirs, results))]
     return "\n".join(lines) + "\n"
 
 
@@ -250,9 +252,9 @@ def _figure(metric: str, value: str) -> str:
     return _pct(float(value))
 
 
-def _profiles(workdir: Path) -> str:
-    """The profiles the results files of ``workdir`` were evaluated under, in order of first appearance."""
-    found = [value.get("profile", "?") for value in _results(workdir).values() if value is not None]
+def _profiles(data: dict[str, dict[str, Any] | None]) -> str:
+    """The profiles a work dir's results files (:func:`_results`) were evaluated under, in order of first appearance."""
+    found = [value.get("profile", "?") for value in data.values() if value is not None]
     return ", ".join(dict.fromkeys(found))
 
 

@@ -73,7 +73,8 @@ def scenes_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Man
     uri = tracker.tracking_uri
     plan = shard_plan(cfg, run_id, uri)
     progress = StageProgress(make_console(), STAGE, total=len(plan) + 1)
-    futures = [unit_task(scenes_shard_task).submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
+    shard = unit_task(scenes_shard_task)  # named once, for every unit
+    futures = [shard.submit(spec, cfg.objects, cfg.scenes.sampling, jobs, cfg.run.seed)
                for spec, jobs in plan]
     return shards_then_merge(
         STAGE, futures,

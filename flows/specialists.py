@@ -93,7 +93,8 @@ def specialists_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str
                       f"splits {stage.splits} — see its report.md")
     encoder = str(upstream["pointnet"].path("encoder"))
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [unit_task(train_bin_task).submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
+    train_bin = unit_task(train_bin_task)  # named once, for every bin
+    futures = [train_bin.submit(spec, label, chunk, stage, cfg.lift, cfg.objects, cfg.hand, encoder)
                for spec, label, chunk in plan]
     return shards_then_merge(STAGE, futures,
                              lambda bins: unit_task(merge_task).submit(merge_spec(cfg, bins, run_id, uri), bins),

@@ -95,8 +95,9 @@ def synthesize_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str,
     console.print(f"[bold cyan]{STAGE}[/] {scenes} scene(s) x {cfg.synthesis.optimizer.batch_size} candidates "
                   f"in {len(plan)} shard(s)")
     progress = StageProgress(console, STAGE, total=len(plan) + 1)
-    futures = [unit_task(synthesize_shard_task).submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand,
-                                                       cfg.run.seed, cfg.run.device, cfg.run.torch_threads)
+    shard = unit_task(synthesize_shard_task)  # named once, for every unit
+    futures = [shard.submit(spec, chunk, cfg.synthesis, cfg.objects, cfg.hand, cfg.run.seed, cfg.run.device,
+                            cfg.run.torch_threads)
                for spec, chunk in plan]
     result = shards_then_merge(
         STAGE, futures,
