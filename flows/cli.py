@@ -302,6 +302,8 @@ SINGLE_STAGE_COMMANDS = [
     ("train-lifting", "specialists", "bins of the training pre-grasps and one TorchRL PPO lift specialist per bin; "
                                      "each resumes from its last checkpoint"),
     ("reach", "reach", "planned reaches to the specialists' pre-grasps, run in PyBullet"),
+    ("distill", "distill", "DAgger of the specialists into one vision-based generalist; resumes from its last "
+                           "iteration"),
 ]
 
 

@@ -35,6 +35,7 @@ from components.errors import MultigraspError
 from components.execution.lift_config import LiftEnvConfig
 from components.hand.config import HandConfig
 from components.objects.config import ObjectsConfig
+from tasks.distill import DistillStageConfig
 from tasks.generator import GeneratorStageConfig
 from tasks.pointnet import PointNetStageConfig
 from tasks.reach import ReachStageConfig
@@ -93,6 +94,8 @@ class PipelineConfig(Section):
                                                 description="Binning of the pre-grasps and PPO of each specialist.")
     reach: ReachStageConfig = Field(default_factory=ReachStageConfig,
                                     description="Planned reaches to the specialists' pre-grasps, run in PyBullet (reach stage).")
+    distill: DistillStageConfig = Field(default_factory=DistillStageConfig,
+                                        description="DAgger of the specialists into one vision-based generalist (distill stage).")
 
     @field_validator("run")
     @classmethod
@@ -379,12 +382,12 @@ _HOW_TO_EVALUATE = ("eval_chunk_poses",)
 #: lifts or scores), left out of its :func:`evaluation_key`: pre-grasp quality does not depend on the lift, and the
 #: synthesised pre-grasps' lifts do not depend on the generator.
 EVALUATION_IGNORES: dict[str, tuple[str, ...]] = {
-    "pregrasp_synthetic.json": ("generator", "pointnet", "specialists", "lift", "reach"),
-    "pregrasp_generated.json": ("pointnet", "specialists", "lift", "reach"),
-    "ablation_generator.json": ("pointnet", "specialists", "lift", "reach"),
-    "execution.json": ("generator",),
-    "ablation_execution.json": ("generator",),
-    "execution_generated.json": (),
+    "pregrasp_synthetic.json": ("generator", "pointnet", "specialists", "lift", "reach", "distill"),
+    "pregrasp_generated.json": ("pointnet", "specialists", "lift", "reach", "distill"),
+    "ablation_generator.json": ("pointnet", "specialists", "lift", "reach", "distill"),
+    "execution.json": ("generator", "distill"),
+    "ablation_execution.json": ("generator", "distill"),
+    "execution_generated.json": ("distill",),
 }
 
 
