@@ -9,6 +9,7 @@
     multigrasp evaluate pregrasp --source synthetic   # Q1 / PN / Div table of the synthesised grasps
     multigrasp evaluate execution                     # lift success of the specialists (Syn-Pl / Com / Geo)
     multigrasp evaluate execution --source generated  # ... on the generator's pre-grasps (Gen-Pl / Com / Geo)
+    multigrasp evaluate generalist                    # lift success of the distilled vision-based generalist
     multigrasp generate --objects cube,cylinder --n 16  # pre-grasps from the trained generator
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp prune --profile bench --keep mini  # delete stage outputs no named config uses (--yes to delete)
@@ -219,8 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "`execution` lifts Syn-Pl / Syn-Com / Syn-Geo pre-grasps with the matching "
                                     "specialists (5 seeded trials per pose by default); `execution --source "
                                     "generated` lifts the generator's (Gen-Pl / Gen-Com / Gen-Geo).")
-    ev.add_argument("target", choices=["pregrasp", "execution"],
-                    help="what to evaluate: pregrasp (Q1 / PN / Div) or execution (lift success of the specialists)")
+    ev.add_argument("target", choices=["pregrasp", "execution", "generalist"],
+                    help="what to evaluate: pregrasp (Q1 / PN / Div), execution (lift success of the specialists) or "
+                         "generalist (lift success of the distilled vision-based generalist on the same poses)")
     ev.add_argument("--source", choices=["synthetic", "generated"], default=None,
                     help="where the pre-grasps come from: synthetic = the synthesize stage, generated = the "
                          "train-generator stage's model on the evaluation scenes (refined, kept by the paper's "
@@ -589,6 +591,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                                   "--source generated, or drop --ablations")
         with _using(cfg):
             report = evaluate_generated_execution(cfg)
+        print(report.markdown)
+        print(f"written: {report.json_path}")
+        return 0
+    if args.target == "generalist":
+        from flows.evaluate_generalist import evaluate_generalist
+
+        if args.ablations or args.source not in (None, "synthetic"):
+            raise MultigraspError("evaluate generalist lifts the synthesised pre-grasps and has no ablations — drop "
+                                  "--source / --ablations")
+        with _using(cfg):
+            report = evaluate_generalist(cfg)
         print(report.markdown)
         print(f"written: {report.json_path}")
         return 0

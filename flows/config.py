@@ -388,6 +388,7 @@ EVALUATION_IGNORES: dict[str, tuple[str, ...]] = {
     "execution.json": ("generator", "distill"),
     "ablation_execution.json": ("generator", "distill"),
     "execution_generated.json": ("distill",),
+    "execution_generalist.json": ("generator",),
 }
 
 

@@ -24,7 +24,7 @@ SETTINGS: tuple[str, ...] = ("distill", "lift", "hand", "objects")
 
 def stage_spec(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str | None = None,
                tracking_uri: str | None = None) -> UnitSpec:
-    return make_spec(stage=STAGE, unit="generalist",
+    return make_spec(stage=STAGE, unit="stage",
                      section_digest=distill_digest(cfg.distill, cfg.lift, cfg.objects, cfg.hand),
                      upstream={"specialists": upstream["specialists"].key[:20], "pointnet": upstream["pointnet"].key[:20]},
                      code=code_version(*DISTILL_CODE_DIRS), workdir=cfg.run.workdir, run_id=run_id,

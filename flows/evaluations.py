@@ -34,6 +34,7 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
     generator's and the execution's ablation variants too (each ablation specialist is trained: cached units)."""
     from flows.evaluate import evaluate_pregrasp
     from flows.evaluate_execution import evaluate_execution
+    from flows.evaluate_generalist import evaluate_generalist
     from flows.evaluate_generated_execution import evaluate_generated_execution
 
     generated = ("pregrasp_generated.json", "ablation_generator.json") if ablations else ("pregrasp_generated.json",)
@@ -47,6 +48,7 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
                    lambda cfg, parent: evaluate_execution(cfg, ablations, parent), needs_ablations=ablations),
         Evaluation("evaluate execution --source generated", ("execution_generated.json",),
                    evaluate_generated_execution),
+        Evaluation("evaluate generalist", ("execution_generalist.json",), evaluate_generalist),
     ]
 
 

@@ -18,7 +18,8 @@ from typing import Any
 
 from components.errors import MultigraspError
 from flows.evaluate import _fmt as _num
-from flows.paper import (PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
+from flows.paper import (PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST, PAPER_GENERATOR_ABLATIONS,
+                         PAPER_PREGRASP)
 from tasks.artifacts import atomic_write_text
 
 #: results file → the command that writes it.
@@ -29,10 +30,12 @@ SOURCES = {
     "execution_generated.json": "multigrasp evaluate execution --source generated",
     "ablation_generator.json": "multigrasp evaluate pregrasp --source generated --ablations",
     "ablation_execution.json": "multigrasp evaluate execution --ablations",
+    "execution_generalist.json": "multigrasp evaluate generalist",
 }
 
 #: the results files of Table I (``run --evaluate`` computes them; the ablation files need ``--ablations``).
-TABLE_ONE_FILES = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json")
+TABLE_ONE_FILES = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json",
+                   "execution_generalist.json")
 
 
 @dataclass
@@ -90,11 +93,14 @@ def _plumbing_note(source: str) -> str:
             "check: its short synthesis accepts no pre-grasp), not from accepted pre-grasps — not a result.")
 
 
-def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: frozenset[str] = frozenset()) -> list[str]:
+def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: frozenset[str] = frozenset(),
+              generalist: dict[str, dict] | None = None) -> list[str]:
     """Table I: pre-grasp quality and execution success per setting, this run (paper); the success of the settings
-    in ``marked`` carries :data:`PLUMBING_MARK`."""
-    lines = ["| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) | s per 256 ↓ | succ ↑ | accepted / kept | n |",
-             "|---|---|---|---|---|---|---|---|"]
+    in ``marked`` carries :data:`PLUMBING_MARK`.  ``generalist``: the distilled generalist's rows (the paper's figure
+    after the slash), a column of their own."""
+    generalist = generalist or {}
+    lines = ["| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) | s per 256 ↓ | succ ↑ | generalist succ ↑ | accepted / kept | n |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for setting, paper in PAPER_PREGRASP.items():
         row = pregrasp.get(setting, {})
         time_here = _num(row.get("time_256_s"), 2)
@@ -105,6 +111,7 @@ def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: fro
             f"{_cell(_num(row.get('pn_mm'), 2), _num(paper['pn_mm'], 2))} | "
             f"{_cell(_num(row.get('div_deg'), 2), _num(paper['div_deg'], 2))} | {_cell(time_here, time_paper)} | "
             f"{_cell(_pct(succ_row.get('succ')) + _mark(setting in marked, succ_row.get('succ')), _pct(PAPER_EXECUTION.get(setting)))} | "
+            f"{_cell(_pct(generalist.get(setting, {}).get('succ')), _pct(PAPER_GENERALIST.get(setting)))} | "
             f"{_pct(row.get('accept_rate'))} | {row.get('n', '–')} |")
     return lines
 
@@ -162,7 +169,8 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
     syn_source = plumbing_only(data["execution.json"])
     ablation_source = plumbing_only(data["ablation_execution.json"])
     marked = frozenset(_rows(data["execution.json"])) if syn_source else frozenset()
-    lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(pregrasp, execution, marked)
+    lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(
+        pregrasp, execution, marked, _rows(data["execution_generalist.json"]))
     lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
                   "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
                   "above 10 cm), 5 trials per pose; the Gen rows' are the same specialists lifting the generator's "
@@ -201,7 +209,8 @@ def _csv_of(data: dict[str, dict[str, Any] | None]) -> str:
                       {**_rows(data["execution.json"]), **_rows(data["execution_generated.json"])},
                       _rows(data["ablation_execution.json"]), _rows(data["ablation_generator.json"]),
                       frozenset(_rows(data["execution.json"])) if syn_source else frozenset(),
-                      plumbing_only(data["ablation_execution.json"]), syn_source)
+                      plumbing_only(data["ablation_execution.json"]), syn_source,
+                      _rows(data["execution_generalist.json"]))
 
 
 def figures(data: dict[str, dict[str, Any] | None]) -> list[dict[str, str]]:
@@ -260,7 +269,7 @@ def _profiles(data: dict[str, dict[str, Any] | None]) -> str:
 
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
                generator: dict[str, dict], marked: frozenset[str] = frozenset(), ablation_source: str | None = None,
-               syn_source: str | None = None) -> str:
+               syn_source: str | None = None, generalist: dict[str, dict] | None = None) -> str:
     """The report's figures as long-format CSV: ``table,setting,metric,here,paper,note`` (empty where not measured).
     ``note`` names a success figure's ``records_source`` where its poses were not accepted pre-grasps (Table I's
     settings in ``marked``; the execution ablations under ``ablation_source``; Ours from Table I under
@@ -282,6 +291,8 @@ def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_e
             put("I", setting, metric, row.get(metric), paper.get(metric))
         put("I", setting, "succ", execution.get(setting, {}).get("succ"), PAPER_EXECUTION.get(setting),
             syn_source if setting in marked else None)
+        put("I", setting, "succ_generalist", (generalist or {}).get(setting, {}).get("succ"),
+            PAPER_GENERALIST.get(setting), syn_source if setting in marked else None)
     for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
         row = generator.get(setting, {})
         for metric in ("q1", "pn_mm"):
@@ -318,6 +329,7 @@ EVALUATED_FROM = {
     "execution_generated.json": [("specialists_manifest", "specialists"), ("generator_manifest", "train-generator")],
     "ablation_execution.json": [("specialists_manifest", "specialists")],
     "ablation_generator.json": [("generator_manifest", "train-generator")],
+    "execution_generalist.json": [("distill_manifest", "distill")],
 }
 
 
