@@ -304,6 +304,8 @@ SINGLE_STAGE_COMMANDS = [
     ("train-lifting", "specialists", "bins of the training pre-grasps and one TorchRL PPO lift specialist per bin; "
                                      "each resumes from its last checkpoint"),
     ("reach", "reach", "planned reaches to the specialists' pre-grasps, run in PyBullet"),
+    ("curriculum", "curriculum", "each specialist adapted to reached and generated pre-grasps in three phases; "
+                                 "resumes from its last checkpoint"),
     ("distill", "distill", "DAgger of the specialists into one vision-based generalist; resumes from its last "
                            "iteration"),
 ]

@@ -34,6 +34,7 @@ from components.config_base import Section
 from components.errors import MultigraspError
 from components.execution.lift_config import LiftEnvConfig
 from components.hand.config import HandConfig
+from components.learning.curriculum import CurriculumConfig
 from components.objects.config import ObjectsConfig
 from tasks.distill import DistillStageConfig
 from tasks.generator import GeneratorStageConfig
@@ -94,6 +95,8 @@ class PipelineConfig(Section):
                                                 description="Binning of the pre-grasps and PPO of each specialist.")
     reach: ReachStageConfig = Field(default_factory=ReachStageConfig,
                                     description="Planned reaches to the specialists' pre-grasps, run in PyBullet (reach stage).")
+    curriculum: CurriculumConfig = Field(default_factory=CurriculumConfig,
+                                         description="Adaptation of the specialists to imprecise pre-grasps (curriculum stage).")
     distill: DistillStageConfig = Field(default_factory=DistillStageConfig,
                                         description="DAgger of the specialists into one vision-based generalist (distill stage).")
 
@@ -382,13 +385,13 @@ _HOW_TO_EVALUATE = ("eval_chunk_poses",)
 #: lifts or scores), left out of its :func:`evaluation_key`: pre-grasp quality does not depend on the lift, and the
 #: synthesised pre-grasps' lifts do not depend on the generator.
 EVALUATION_IGNORES: dict[str, tuple[str, ...]] = {
-    "pregrasp_synthetic.json": ("generator", "pointnet", "specialists", "lift", "reach", "distill"),
-    "pregrasp_generated.json": ("pointnet", "specialists", "lift", "reach", "distill"),
-    "ablation_generator.json": ("pointnet", "specialists", "lift", "reach", "distill"),
-    "execution.json": ("generator", "distill"),
-    "ablation_execution.json": ("generator", "distill"),
-    "execution_generated.json": ("distill",),
-    "execution_generalist.json": ("generator",),
+    "pregrasp_synthetic.json": ("generator", "pointnet", "specialists", "lift", "reach", "curriculum", "distill"),
+    "pregrasp_generated.json": ("pointnet", "specialists", "lift", "reach", "curriculum", "distill"),
+    "ablation_generator.json": ("pointnet", "specialists", "lift", "reach", "curriculum", "distill"),
+    "execution.json": ("generator", "curriculum", "distill"),
+    "ablation_execution.json": ("generator", "curriculum", "distill"),
+    "execution_generated.json": ("curriculum", "distill"),
+    "execution_generalist.json": (),
 }
 
 

@@ -1,4 +1,5 @@
-"""Stage flow ``distill``: DAgger of the specialists into one vision-based generalist (``tasks.distill``)."""
+"""Stage flow ``distill``: DAgger of the specialists, as the curriculum adapted them, into one vision-based generalist
+(``tasks.distill``)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from tasks.tracking import Tracker
 from tasks.units import UnitSpec, make_spec
 
 STAGE = "distill"
-UPSTREAM: tuple[str, ...] = ("specialists", "pointnet")
+UPSTREAM: tuple[str, ...] = ("curriculum", "pointnet")
 DESCRIPTION = "distil the specialists into one vision-based generalist by DAgger (three simulated depth cameras)"
 # the config sections this stage reads, logged as its MLflow run's params (compare two runs' stage in the UI)
 SETTINGS: tuple[str, ...] = ("distill", "lift", "hand", "objects")
@@ -26,7 +27,7 @@ def stage_spec(cfg: PipelineConfig, upstream: dict[str, Manifest], run_id: str |
                tracking_uri: str | None = None) -> UnitSpec:
     return make_spec(stage=STAGE, unit="stage",
                      section_digest=distill_digest(cfg.distill, cfg.lift, cfg.objects, cfg.hand),
-                     upstream={"specialists": upstream["specialists"].key[:20], "pointnet": upstream["pointnet"].key[:20]},
+                     upstream={"teachers": upstream["curriculum"].key[:20], "pointnet": upstream["pointnet"].key[:20]},
                      code=code_version(*DISTILL_CODE_DIRS), workdir=cfg.run.workdir, run_id=run_id,
                      tracking_uri=tracking_uri)
 
@@ -39,7 +40,7 @@ def planned_units(cfg: PipelineConfig, upstream: dict[str, Manifest]) -> list[Un
 def distill_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Manifest]) -> StageResult:
     tracker = make_tracker(cfg)
     run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
-    index = read_specialist_index(upstream["specialists"])
+    index = read_specialist_index(upstream["curriculum"])  # the adapted specialists teach
     dagger = cfg.distill.dagger
     console = make_console()
     console.print(f"[bold cyan]{STAGE}[/] {len(index)} specialist(s) -> one generalist: {dagger.iterations} DAgger "

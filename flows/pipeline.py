@@ -16,14 +16,15 @@ from pathlib import Path
 from types import ModuleType
 
 from components.errors import MultigraspError
-from flows import distill, pointnet, reach, scenes, specialists, synthesize, train_generator
+from flows import curriculum, distill, pointnet, reach, scenes, specialists, synthesize, train_generator
 from flows.config import PipelineConfig
 from flows.runtime import RunContext, StageResult, make_tracker, prefect_context
 from tasks.artifacts import Manifest, lock_holder, lock_path, valid_manifest
 from tasks.preflight import validate_inputs
 from tasks.tracking import flatten
 
-STAGES: tuple[ModuleType, ...] = (scenes, synthesize, train_generator, pointnet, specialists, reach, distill)
+STAGES: tuple[ModuleType, ...] = (scenes, synthesize, train_generator, pointnet, specialists, reach, curriculum,
+                                     distill)
 """Stage modules in execution order (generator, … are added by later issues)."""
 
 

@@ -1,9 +1,9 @@
 """The ``distill`` stage: DAgger of every specialist into one vision-based generalist (paper §"Learning a Generalist
 from Specialists"; :mod:`components.learning.dagger`, cameras :mod:`components.learning.vision`).
 
-One unit, ``stage``: one lift env per specialist bin over the bin's training pre-grasps (the records file the
-specialists stage keeps in the bin's unit), its specialist as the teacher, and DAgger collecting, aggregating and
-fitting in this process.  Files: ``student.pt`` (the checkpoint: a killed distillation resumes from its last finished
+One unit, ``stage``: one lift env per specialist bin over the bin's training pre-grasps (the records file the bin's unit
+keeps), its specialist, as the ``curriculum`` stage adapted it, as the teacher, and DAgger collecting, aggregating
+and fitting in this process.  Files: ``student.pt`` (the checkpoint: a killed distillation resumes from its last finished
 iteration), ``history.json``, ``validations.json`` (the deterministic student, and once the teachers, on the
 validation pre-grasps) and ``learning_curve.png``.
 

@@ -178,3 +178,26 @@ def test_a_corrupt_checkpoint_and_no_specialists_are_one_line_errors(env, tmp_pa
         run_dagger([Bin("b", env, ConstantTeacher(0.0))], SceneCameras(SMALL), DAggerConfig(iterations=1), bad)
     with pytest.raises(MultigraspError, match="no specialists"):
         run_dagger([], SceneCameras(SMALL), DAggerConfig(), tmp_path / "other.pt")
+
+
+# --------------------------------------------------------------------------- the curriculum's phases
+
+
+def test_the_curriculum_mixes_each_phases_starts_in_its_shares():
+    from collections import Counter
+
+    from components.learning.curriculum import CurriculumConfig, mix, phase_starts
+
+    synthetic, reached, generated = ["s1", "s2", "s3", "s4"], ["r1"], ["g1", "g2"]
+    cfg = CurriculumConfig(phase2_imprecise_share=0.5, phase3_generated_share=0.8)
+    assert phase_starts(1, synthetic, reached, generated, cfg) == synthetic
+    two = Counter(x[0] for x in phase_starts(2, synthetic, reached, generated, cfg))
+    assert two["s"] == two["r"] + two["g"]  # half imprecise
+    three = phase_starts(3, synthetic, reached, generated, cfg)
+    share = sum(x[0] == "g" for x in three) / len(three)
+    assert abs(share - 0.8) < 0.05 and set(three) == set(synthetic + reached + generated)  # every start kept
+    # an empty pool hands its share to the others: no generated starts, phase 3 is the synthetic and reached ones
+    assert set(phase_starts(3, synthetic, reached, [], cfg)) == set(synthetic + reached)
+    assert mix([([], 0.5), ([], 0.5)]) == []
+    with pytest.raises(ValueError, match="phases 1 to 3"):
+        phase_starts(4, synthetic, reached, generated, cfg)

@@ -474,3 +474,72 @@ def test_a_lift_jobs_setting_counts_the_gif_quota_only_for_the_jobs_that_make_gi
         other = with_overrides(cfg, override)
         assert lift_setting(other, True, True) == lift_setting(cfg, True, True)
         assert evaluation_key(other, "execution.json") == evaluation_key(cfg, "execution.json")
+
+
+# --------------------------------------------------------------------------- curriculum, distill, the generalist
+
+#: The curriculum's generated starts kept whatever their penetration (the smoke generator is barely trained), one
+#: PPO iteration per phase; a two-iteration DAgger.
+ADAPT = ["generator.eval_filter.enabled=false", "curriculum.generated_per_scene=2", "curriculum.phase_iterations=[1,1,1]",
+         "distill.dagger.iterations=2", "distill.dagger.episodes_per_iteration=2"]
+
+
+def _adapt_argv(command: list[str], workdir, *sets: str) -> list[str]:
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    argv = [*command, "--profile", "smoke", "--workdir", str(workdir), "--config", str(config)]
+    for item in [*ACCEPT_ALL, *TINY, *ADAPT, *sets]:
+        argv += ["--set", item]
+    return argv
+
+
+def test_the_curriculum_adapts_each_specialist_then_dagger_distils_them_and_the_generalist_is_evaluated(runs, capsys):
+    from components.execution.ppo import load_checkpoint
+    from components.execution.records import load_records
+    from components.learning.dagger import load_student
+
+    workdir, _, _ = runs
+    assert main(_adapt_argv(["distill"], workdir)) == 0  # with its upstream: train-generator, reach, curriculum
+    specialists, curriculum = _final(workdir, "specialists"), _final(workdir, "curriculum")
+    index = json.loads(curriculum.path("index").read_text())
+    assert sorted(index) == sorted(json.loads(specialists.path("index").read_text()))  # one adapted per specialist
+    for label, entry in index.items():
+        unit = read_manifest(Path(entry["folder"]))
+        base = unit.metrics["specialist_iterations"]
+        assert base == 2 and unit.metrics["iterations"] == base + 3  # continued from the specialist, 3 phases
+        assert load_checkpoint(unit.path("policy"))["iteration"] == base + 3
+        generated = load_records(unit.path("generated"))
+        assert unit.metrics["generated_starts"] == len(generated) > 0
+        assert all("object_displacement_m" in r.meta for r in generated)  # reached from an open hand
+        assert {p.name for p in generated[0].scene.objects} == set(label.split("/")[0].split("+"))
+        phase3 = load_records(unit.path("phase3"))
+        assert sum(r.meta.get("source") == "generated" for r in phase3) >= 0.7 * len(phase3)
+    distill = _final(workdir, "distill")
+    assert distill.metrics["bins"] == len(index) and distill.metrics["iterations"] == 2
+    assert distill.metrics["samples"] > 0 and "teacher_validation_success" in distill.metrics
+    history = json.loads(distill.path("history").read_text())
+    assert [h["beta"] for h in history] == [1.0, 0.5]
+    assert load_student(distill.path("student")).mean.shape[0] == 438 + 256
+    err = capsys.readouterr().err
+    assert "curriculum" in err and "distill" in err and "ETA" in err
+    before = executions(workdir)
+    assert main(_adapt_argv(["distill"], workdir)) == 0
+    assert executions(workdir) == before  # served from cache
+    # the generalist lifts the evaluation poses of `evaluate execution`, in cached jobs
+    assert main(_adapt_argv(["evaluate", "generalist", "--max-workers", "1"], workdir, "specialists.eval_poses=2",
+                            "specialists.eval_trials=1")) == 0
+    data = json.loads((workdir / "results" / "execution_generalist.json").read_text())
+    assert [r["setting"] for r in data["rows"]] == ["Syn-Pl", "Syn-Com", "Syn-Geo"]
+    assert data["rows"][0]["paper"] == 0.4413 and all(0.0 <= (r["succ"] or 0.0) <= 1.0 for r in data["rows"])
+    # the fixture's Syn-Pl scenes are singles (the table lifts pairs): its Syn-Com pair is lifted
+    assert sum(r["n_poses"] for r in data["rows"]) >= 1 and all(r["n_poses"] <= 2 for r in data["rows"])
+    assert data["distill_manifest"].endswith("manifest.json")
+    jobs = executions(workdir)
+    assert main(_adapt_argv(["evaluate", "generalist", "--max-workers", "1"], workdir, "specialists.eval_poses=2",
+                            "specialists.eval_trials=1")) == 0
+    assert executions(workdir) == jobs  # every lift job served from its unit
+    assert "evaluate generalist Syn-Pl" in capsys.readouterr().err
+
+
+def test_evaluate_generalist_without_the_distill_stage_names_the_command(tmp_path, capsys):
+    assert main(["evaluate", "generalist", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    assert "run --until distill" in capsys.readouterr().err
