@@ -138,11 +138,12 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     for item in sets:
         argv += ["--set", item]
     results = workdir / "results"
-    names = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json")
+    names = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json",
+             "execution_generalist.json")
 
     assert main(argv) == 0
     first = capsys.readouterr().err
-    assert "4 evaluation(s) computed" in first and "every stage served from cache" in first
+    assert "5 evaluation(s) computed" in first and "every stage served from cache" in first
     assert (results / "report.md").is_file() and "| Syn-Pl |" in (results / "report.md").read_text()
     cfg = load_config("smoke", sets=list(sets), workdir=workdir)
     assert {r.name: r.state for r in evaluation_status(cfg) if r.name in names} == dict.fromkeys(names, "current")
@@ -154,7 +155,7 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     runs = client.search_runs(client.get_experiment_by_name("multigrasp").experiment_id)
     nested = [r for r in runs if r.info.run_name.startswith("evaluate:") or r.info.run_name == "report"]
     parents = {r.data.tags.get("mlflow.parentRunId") for r in nested}
-    assert len(nested) == 5 and len(parents) == 1 and client.get_run(parents.pop()).info.run_name == "run:smoke"
+    assert len(nested) == 6 and len(parents) == 1 and client.get_run(parents.pop()).info.run_name == "run:smoke"
     # the closing lines link this invocation's run in the UI that `multigrasp ui` starts
     import re
 
@@ -168,13 +169,13 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     # each evaluation's run: the settings its figures depend on as params, their digest as its results file's key
     files = {"evaluate:pregrasp:synthetic": "pregrasp_synthetic.json", "evaluate:pregrasp:generated":
              "pregrasp_generated.json", "evaluate:execution": "execution.json",
-             "evaluate:execution:generated": "execution_generated.json"}
+             "evaluate:execution:generated": "execution_generated.json", "evaluate:generalist": "execution_generalist.json"}
     for run in nested:
         if run.info.run_name in files:
             written_key = json.loads((results / files[run.info.run_name]).read_text())["config_key"]
             assert run.data.tags["config_key"] == written_key
             assert run.data.params["objects.train"] and "run.workdir" not in run.data.params
-            assert ("specialists.eval_trials" in run.data.params) == run.info.run_name.startswith("evaluate:execution")
+            assert ("specialists.eval_trials" in run.data.params) == run.info.run_name.startswith(("evaluate:execution", "evaluate:generalist"))
 
     assert main(argv) == 0
     assert "0 evaluation(s) computed" in capsys.readouterr().err
@@ -188,7 +189,7 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     # another evaluation setting of the lift makes the lift evaluations stale, not the pre-grasp ones
     other = load_config("smoke", sets=[*sets, "specialists.eval_trials=2"], workdir=workdir)
     states = {r.name: r for r in evaluation_status(other) if r.name in names}
-    assert [states[name].state for name in names] == ["current", "current", "stale", "stale"]
+    assert [states[name].state for name in names] == ["current", "current", "stale", "stale", "stale"]
     assert "other settings" in states["execution.json"].detail
 
 
@@ -298,7 +299,7 @@ def test_status_lists_missing_then_done(tmp_path, capsys):
     cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
     states = {r.name: r.state for r in status(cfg)}
     assert states == {"scenes": "missing", "synthesize": "blocked", "train-generator": "blocked", "pointnet": "missing",
-                      "specialists": "blocked", "reach": "blocked"}
+                      "specialists": "blocked", "reach": "blocked", "curriculum": "blocked", "distill": "blocked"}
     assert main(["status", "--profile", "smoke", "--workdir", str(tmp_path)] + sum([["--set", s] for s in SMALL], [])) == 0
     assert "missing" in capsys.readouterr().out
     # --json: the same states for scripts, and the command that computes the evaluations
