@@ -11,8 +11,8 @@ file.
 Two cases are kept whole.  A stage whose upstream stage of a kept config is partial or corrupt cannot say which of
 its folders are current (their keys contain the upstream output's hash, which does not exist yet), so its folders
 and those of the stages after it stay.  Folders under ``stages/`` that this version has no stage for stay too.
-The lift jobs of ``evaluate execution`` (``stages/evaluate-execution/``, :mod:`tasks.lift_jobs`) go when they are
-of older code or unfinished; the finished ones of this code stay (:func:`_plan_lift_jobs`).
+The lift jobs of ``evaluate execution`` (``stages/evaluate-execution/``, :mod:`tasks.lift_jobs`) and of ``evaluate
+generalist`` (``stages/evaluate-generalist/``) go when they are of older code or unfinished; the finished ones of this code stay (:func:`_plan_lift_jobs`).
 
 Without ``--yes`` nothing is deleted: the plan is printed.  With it, the work dir's lock is taken exclusively first
 (:func:`tasks.artifacts.workdir_exclusive`), so a prune never deletes under a running ``run`` / ``evaluate`` /
@@ -29,6 +29,7 @@ from pathlib import Path
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, with_overrides
 from tasks.artifacts import lock_path, read_manifest, valid_manifest, workdir_exclusive
+from tasks.generalist_jobs import STAGE as GENERALIST_JOBS
 from tasks.lift_jobs import STAGE as LIFT_JOBS
 from tasks.units import records_dir
 
@@ -114,7 +115,7 @@ def plan_prune(configs: Iterable[PipelineConfig], labels: list[str]) -> PrunePla
     out = PrunePlan(workdir=workdir, kept=labels, guarded=guarded)
     for stage_dir in sorted(p for p in (workdir / "stages").iterdir() if p.is_dir()):
         name = stage_dir.name
-        if name == LIFT_JOBS:
+        if name in (LIFT_JOBS, GENERALIST_JOBS):
             _plan_lift_jobs(stage_dir, out)
             continue
         if name not in known:
@@ -137,14 +138,15 @@ def plan_prune(configs: Iterable[PipelineConfig], labels: list[str]) -> PrunePla
 
 
 def _plan_lift_jobs(stage_dir: Path, out: PrunePlan) -> None:
-    """The lift jobs of the execution evaluations (:mod:`tasks.lift_jobs`): those of older code, or unfinished (an
-    interrupted job is lifted from its start again, so its folder holds nothing to resume), are candidates; the
-    finished ones of this code stay whatever config made them (a few kB each, GIFs aside), so going back to a
-    config evaluates it again from its jobs."""
-    from tasks.lift_jobs import LIFT_CODE
+    """The lift jobs of the execution evaluations (:mod:`tasks.lift_jobs`, and the generalist's,
+    :mod:`tasks.generalist_jobs`): those of older code, or unfinished (an interrupted job is lifted from its start
+    again, so its folder holds nothing to resume), are candidates; the finished ones of this code stay whatever config
+    made them (a few kB each, GIFs aside), so going back to a config evaluates it again from its jobs."""
     from tasks.artifacts import code_version
+    from tasks.generalist_jobs import GENERALIST_LIFT_CODE
+    from tasks.lift_jobs import LIFT_CODE
 
-    current = code_version(*LIFT_CODE)
+    current = code_version(*(LIFT_CODE if stage_dir.name == LIFT_JOBS else GENERALIST_LIFT_CODE))
     for folder in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
         manifest = read_manifest(folder)
         reason = "unfinished" if manifest is None else "older code" if manifest.code_version != current else None

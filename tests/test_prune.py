@@ -133,15 +133,18 @@ def test_an_invocation_waits_for_a_running_prune(tmp_path):
     assert not list((tmp_path / "locks" / "invocations").iterdir())  # its record goes with it
 
 
-def test_prune_deletes_the_lift_jobs_of_older_code_and_unfinished_ones_only(tmp_path):
-    """Lift jobs (tasks/lift_jobs.py) are not planned by a config: finished ones of this code stay, whatever
-    config made them; those of another code version, or without a manifest (interrupted), go."""
+@pytest.mark.parametrize("jobs", ["specialists", "generalist"])
+def test_prune_deletes_the_lift_jobs_of_older_code_and_unfinished_ones_only(tmp_path, jobs):
+    """Lift jobs (tasks/lift_jobs.py, tasks/generalist_jobs.py) are not planned by a config: finished ones of this
+    code stay, whatever config made them; those of another code version, or without a manifest (interrupted), go."""
     from flows.prune import PrunePlan, _plan_lift_jobs
+    from tasks import generalist_jobs, lift_jobs
     from tasks.artifacts import atomic_write_json, code_version, write_manifest
-    from tasks.lift_jobs import LIFT_CODE, STAGE
 
+    STAGE, code_now = ((lift_jobs.STAGE, code_version(*lift_jobs.LIFT_CODE)) if jobs == "specialists" else
+                       (generalist_jobs.STAGE, code_version(*generalist_jobs.GENERALIST_LIFT_CODE)))
     stage_dir = tmp_path / "stages" / STAGE
-    for name, code in (("aaaa", code_version(*LIFT_CODE)), ("bbbb", "0ld"), ("cccc", None)):
+    for name, code in (("aaaa", code_now), ("bbbb", "0ld"), ("cccc", None)):
         folder = stage_dir / name
         result = atomic_write_json(folder / "result.json", {"policy": [1], "wo_rl": None, "squeeze": None, "gifs": []})
         if code is not None:
