@@ -543,3 +543,37 @@ def test_the_curriculum_adapts_each_specialist_then_dagger_distils_them_and_the_
 def test_evaluate_generalist_without_the_distill_stage_names_the_command(tmp_path, capsys):
     assert main(["evaluate", "generalist", "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
     assert "run --until distill" in capsys.readouterr().err
+
+
+def test_a_curriculum_killed_in_phase_two_resumes_there_and_keeps_its_generated_starts(runs, monkeypatch):
+    import components.execution.ppo as ppo
+    import tasks.curriculum
+
+    workdir, _, _ = runs
+    argv = _adapt_argv(["curriculum"], workdir, "curriculum.seed=7")  # a key of its own: not the test above's units
+    real_train, real_generated = ppo.train_ppo, tasks.curriculum.generated_starts
+    calls: dict[str, int] = {}
+    generated: list[str] = []
+
+    def killed_in_phase_two(factory, cfg, checkpoint, *args, **kwargs):
+        calls[str(checkpoint)] = calls.get(str(checkpoint), 0) + 1
+        if calls[str(checkpoint)] == 2:
+            raise RuntimeError("simulated kill in phase 2")
+        return real_train(factory, cfg, checkpoint, *args, **kwargs)
+
+    def counted(label, *args, **kwargs):
+        generated.append(label)
+        return real_generated(label, *args, **kwargs)
+
+    monkeypatch.setattr(ppo, "train_ppo", killed_in_phase_two)
+    monkeypatch.setattr(tasks.curriculum, "generated_starts", counted)
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        main(argv)
+    before = sorted(generated)
+    assert before  # the killed bins made their generated starts
+    monkeypatch.setattr(ppo, "train_ppo", real_train)
+    assert main(argv) == 0
+    assert sorted(generated) == before  # ...and kept them: none made again
+    for entry in json.loads(_final(workdir, "curriculum").path("index").read_text()).values():
+        history = json.loads((Path(entry["folder"]) / "history.json").read_text())
+        assert [h["iteration"] for h in history] == [1, 2, 3, 4, 5]  # phase 1 not redone, phases 2 and 3 once
