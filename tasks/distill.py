@@ -4,7 +4,7 @@ from Specialists"; :mod:`components.learning.dagger`, cameras :mod:`components.l
 One unit, ``stage``: one lift env per specialist bin over the bin's training pre-grasps (the records file the bin's unit
 keeps), its specialist, as the ``curriculum`` stage adapted it, as the teacher, and DAgger collecting, aggregating
 and fitting in this process.  Files: ``student.pt`` (the checkpoint: a killed distillation resumes from its last finished
-iteration), ``history.json``, ``validations.json`` (the deterministic student, and once the teachers, on the
+iteration; its data set lies beside it, ``student.pt.data/``, one file per iteration), ``history.json``, ``validations.json`` (the deterministic student, and once the teachers, on the
 validation pre-grasps) and ``learning_curve.png``.
 
 Validation: ``validation_poses`` pre-grasps spread over each bin's records, ``validation_trials`` seeded trials each,

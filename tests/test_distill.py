@@ -14,7 +14,7 @@ from components.execution.cameras import CameraConfig, add_table, preview_hand_p
 from components.execution.observations import observation_blocks
 from components.execution.pointnet import PointNetConfig, PointNetEncoder
 from components.learning.dagger import (Bin, DAggerConfig, StudentObserver, StudentPolicy, VisionPolicy, beta,
-                                        fit_student, hand_dim, load_student, run_dagger, student_blocks, student_dim)
+                                        data_folder, fit_student, hand_dim, load_student, run_dagger, student_blocks, student_dim)
 from components.learning.vision import SceneCameras, VisionConfig, camera_points, farthest_points, voxel_thin
 from components.objects import Placement, Scene
 
@@ -169,6 +169,12 @@ def test_dagger_labels_every_state_with_the_teacher_and_resumes_from_its_checkpo
     assert more.samples == 4 * env.cfg.max_steps and more.history[1]["beta"] == 0.5
     again = run_dagger(bins, cameras, cfg.model_copy(update={"iterations": 2}), tmp_path / "student.pt")
     assert again.resumed_from == 2 and again.samples == more.samples  # finished: nothing collected
+    # the data set lies beside the checkpoint, one file per iteration; a lost one is a one-line error
+    chunks = sorted(data_folder(tmp_path / "student.pt").iterdir())
+    assert [c.name for c in chunks] == ["iteration-0001.pt", "iteration-0002.pt"]
+    chunks[0].unlink()
+    with pytest.raises(MultigraspError, match=r"iteration-0001.pt is missing or corrupt \(FileNotFoundError\); delete"):
+        run_dagger(bins, cameras, cfg.model_copy(update={"iterations": 3}), tmp_path / "student.pt")
 
 
 def test_a_corrupt_checkpoint_and_no_specialists_are_one_line_errors(env, tmp_path):

@@ -21,8 +21,9 @@ Each DAgger iteration k:
 
 Every ``validate_every`` iterations the deterministic student lifts the validation pre-grasps; the best validated
 student is the generalist (as the specialists keep their best validated actor).  The checkpoint (student,
-optimiser, data set, iteration, history, best) is written atomically after every iteration: a killed distillation
-resumes from its last finished iteration, and a finished one returns at once.
+optimiser, iteration, history, best) is written atomically after every iteration, after that iteration's pairs
+(:func:`data_folder`): a killed distillation resumes from its last finished iteration with its whole data set, and
+a finished one returns at once.
 """
 
 from __future__ import annotations
@@ -199,15 +200,44 @@ def load_student(path: Path, which: str = "best") -> StudentPolicy:
     return student.eval()
 
 
-def _save(path: Path, student: StudentPolicy, optimizer, cfg: DAggerConfig, iteration: int, observations, labels,
-          history, validations, best) -> None:
+def _save(path: Path, student: StudentPolicy, optimizer, cfg: DAggerConfig, iteration: int, history, validations,
+          best) -> None:
     buffer = io.BytesIO()
     torch.save({"format": "multigrasp-dagger", "version": 1, "config": cfg.model_dump(mode="json"),
                 "obs_dim": student.mean.shape[0], "act_dim": student.net[-1].out_features,
                 "student": student.state_dict(), "optimizer": optimizer.state_dict(), "iteration": iteration,
-                "observations": observations, "labels": labels, "history": history, "validations": validations,
-                "best": best}, buffer)
+                "history": history, "validations": validations, "best": best}, buffer)
     atomic_write_bytes(path, buffer.getvalue())
+
+
+def data_folder(checkpoint: Path) -> Path:
+    """Where the data set of a checkpoint lies: one file per iteration (``iteration-0001.pt``: that iteration's
+    student observations and teacher actions) in ``<checkpoint name>.data/`` beside it.  Each iteration writes only
+    its own pairs, so a checkpoint stays small whatever the data set's size (2 M pairs of 718 floats are ~5.7 GB)."""
+    return checkpoint.with_name(checkpoint.name + ".data")
+
+
+def _save_chunk(checkpoint: Path, iteration: int, observations: torch.Tensor, labels: torch.Tensor) -> None:
+    buffer = io.BytesIO()
+    torch.save({"observations": observations, "labels": labels}, buffer)
+    atomic_write_bytes(data_folder(checkpoint) / f"iteration-{iteration:04d}.pt", buffer.getvalue())
+
+
+def _load_data(checkpoint: Path, iterations: int, obs_dim: int, act_dim: int,
+               max_samples: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The data set of the first ``iterations`` iterations (the newest ``max_samples`` pairs); one-line error for a
+    missing or unreadable chunk."""
+    observations, labels = [torch.zeros(0, obs_dim)], [torch.zeros(0, act_dim)]
+    for number in range(1, iterations + 1):
+        path = data_folder(checkpoint) / f"iteration-{number:04d}.pt"
+        try:
+            chunk = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 -- any unreadable file gets the same advice
+            raise MultigraspError(f"DAgger data {path} is missing or corrupt ({type(exc).__name__}); delete "
+                                  f"{checkpoint} and {data_folder(checkpoint)} to distil again from scratch") from None
+        observations.append(chunk["observations"])
+        labels.append(chunk["labels"])
+    return torch.cat(observations)[-max_samples:], torch.cat(labels)[-max_samples:]
 
 
 def fit_student(student: StudentPolicy, optimizer, observations: torch.Tensor, labels: torch.Tensor,
@@ -273,7 +303,8 @@ def run_dagger(bins: Sequence[Bin], cameras: SceneCameras, cfg: DAggerConfig, ch
         optimizer.load_state_dict(state["optimizer"])
         start_iteration, history = int(state["iteration"]), list(state["history"])
         validations, best = list(state["validations"]), state["best"]
-        observations, labels = state["observations"], state["labels"]
+        observations, labels = _load_data(checkpoint, start_iteration, observations.shape[1], labels.shape[1],
+                                          cfg.max_samples)
     result = DAggerResult(student=student, history=history, validations=validations, resumed_from=start_iteration)
     validating = validate is not None and cfg.validate_every > 0
     weights = np.array([b.weight for b in bins], dtype=np.float64)
@@ -298,8 +329,10 @@ def run_dagger(bins: Sequence[Bin], cameras: SceneCameras, cfg: DAggerConfig, ch
                 episodes += 1
                 new_obs += mixture.observations
                 new_labels += mixture.labels
-        observations = torch.cat([observations, torch.stack(new_obs)])[-cfg.max_samples:]
-        labels = torch.cat([labels, torch.stack(new_labels)])[-cfg.max_samples:]
+        new_obs, new_labels = torch.stack(new_obs), torch.stack(new_labels)
+        _save_chunk(checkpoint, iteration + 1, new_obs, new_labels)  # before the checkpoint that counts it
+        observations = torch.cat([observations, new_obs])[-cfg.max_samples:]
+        labels = torch.cat([labels, new_labels])[-cfg.max_samples:]
         fit_start = time.perf_counter()
         loss = fit_student(student, optimizer, observations, labels, cfg, generator)
         done = time.perf_counter()
@@ -312,7 +345,7 @@ def run_dagger(bins: Sequence[Bin], cameras: SceneCameras, cfg: DAggerConfig, ch
             validations.append(check)
             row.update(val_success=check["success"], val_lift=check["lift"])
         history.append(row)
-        _save(checkpoint, student, optimizer, cfg, number, observations, labels, history, validations, best)
+        _save(checkpoint, student, optimizer, cfg, number, history, validations, best)
         if progress is not None:
             elapsed = time.perf_counter() - began
             progress(number, cfg.iterations,
