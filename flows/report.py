@@ -174,7 +174,9 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
     lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
                   "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
                   "above 10 cm), 5 trials per pose; the Gen rows' are the same specialists lifting the generator's "
-                  "kept pre-grasps, as the paper's."]
+                  "kept pre-grasps, as the paper's. generalist succ: the distilled vision-based student on the same "
+                  "Syn poses and trials (`multigrasp evaluate generalist`); the paper gives it for Syn-Pl and Gen-Pl "
+                  "only."]
     if syn_source:
         lines += ["", _plumbing_note(syn_source)]
     lines += ["", "## Table II: ablations", ""] + table_two(_rows(data["ablation_generator.json"]), ablation_execution,

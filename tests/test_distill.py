@@ -207,3 +207,15 @@ def test_the_curriculum_mixes_each_phases_starts_in_its_shares():
     assert mix([([], 0.5), ([], 0.5)]) == []
     with pytest.raises(ValueError, match="phases 1 to 3"):
         phase_starts(4, synthetic, reached, generated, cfg)
+
+
+def test_the_scene_cloud_benchmark_writes_its_timings(tmp_path):
+    import json
+
+    from benchmarks.scene_cloud import main
+
+    out = tmp_path / "scene_cloud.json"
+    assert main(["--json", str(out), "--repeats", "1", "--sizes", "32x24"]) == 0
+    row, = json.loads(out.read_text())["rows"]
+    assert row["width"] == 32 and row["cameras"] == 3 and 0 < row["render_s"] <= row["feature_s"]
+    assert 0 < row["object_pixels"] < row["scene_pixels"]
