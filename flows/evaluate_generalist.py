@@ -1,9 +1,11 @@
 """``multigrasp evaluate generalist``: lift success of the distilled vision-based generalist (the figure after the
-slash in the paper's Table I: Syn-Pl 68.34 % specialists / 44.13 % generalist).
+slash in the paper's Table I: Syn-Pl 68.34 % specialists / 44.13 % generalist, Gen-Pl 40.20 / 30.24 %).
 
 The poses and trials are those of ``evaluate execution`` (:mod:`flows.evaluate_execution`): per setting
 (Syn-Pl / Syn-Com / Syn-Geo) ``specialists.eval_poses`` dual-object pre-grasps of the split, evenly spread,
-``specialists.eval_trials`` trials each, seeded by the same pose keys.  One policy lifts them all: the student of the
+``specialists.eval_trials`` trials each, seeded by the same pose keys; and those of ``evaluate execution --source
+generated`` (Gen-Pl / Gen-Com / Gen-Geo: the generator's pre-grasps of each split's first ``generator.eval_scenes``
+dual-object scenes that the paper's protocol filter keeps, generated again by the same seeded procedure).  One policy lifts them all: the student of the
 distill stage, which sees the scene through the cameras of ``distill.vision`` instead of the objects' states.  The
 poses are lifted in cached jobs (:mod:`tasks.generalist_jobs`), in the evaluation's worker processes (``run.runner``
 as ``evaluate execution``), so a killed evaluation relifts only the jobs that had not finished.
@@ -21,6 +23,7 @@ from pathlib import Path
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, evaluation_key, section_digest
 from flows.evaluate_execution import EVALUATED_OBJECTS, EXECUTION_SETTINGS, lift_env_factory, lift_pool, pose_chunks, pose_key
+from flows.evaluate_generated_execution import GENERATED_EXECUTION_SETTINGS
 from flows.paper import generalist_paper
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
@@ -44,8 +47,10 @@ def _outputs(cfg: PipelineConfig) -> dict:
     return outputs
 
 
-def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path) -> list:
-    """The generalist's lift jobs of one split (module docstring)."""
+def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, records: list | None = None,
+              name: str | None = None) -> list:
+    """The generalist's lift jobs of one split (module docstring); ``records``: the pre-grasps to lift instead of the
+    synthesize stage's (the generator's), ``name`` the jobs' unit name part (default: the split)."""
     from components.execution.records import record_to_dict
     from components.hand import HandModel
     from components.hand.model import URDF_FILE_NAME
@@ -55,8 +60,9 @@ def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path) -> 
     from tasks.specialists import select_records, spread_records
 
     stage = cfg.specialists
-    records = [r for r in select_records(outputs["synthesize"], stage, [split])
-               if len(r.scene.objects) == EVALUATED_OBJECTS]
+    if records is None:
+        records = select_records(outputs["synthesize"], stage, [split])
+    records = [r for r in records if len(r.scene.objects) == EVALUATED_OBJECTS]
     records = spread_records(records, stage.eval_poses)
     urdf = HandModel(cfg.hand).export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
     student = outputs["distill"].path("student")
@@ -71,8 +77,8 @@ def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path) -> 
         chunk = records[a:b]
         spec = job_spec(workdir=cfg.run.workdir, first=a, setting_digest=setting, student_digest=student_digest,
                         encoder_key=outputs["pointnet"].key, records=[record_to_dict(r) for r in chunk],
-                        keys=keys[a:b], code=code, split=split)
-        factory = lift_env_factory(cfg, outputs, urdf, chunk, scratch / f"{split}.{a}-{b}.json")
+                        keys=keys[a:b], code=code, split=name or split)
+        factory = lift_env_factory(cfg, outputs, urdf, chunk, scratch / f"{name or split}.{a}-{b}.json")
         jobs.append(GeneralistJob(factory=factory, student=str(student),
                                   vision=cfg.distill.vision.model_dump(mode="json"), keys=keys[a:b],
                                   trials=stage.eval_trials, seed=stage.eval_seed, spec=spec))
@@ -117,9 +123,13 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
     stage = cfg.specialists
     scratch = cfg.run.workdir / "results" / "generalist"
     rows = []
+    generated = _generated_records(cfg, say)
     with lift_pool(cfg.run) as pool:
-        for setting, split in EXECUTION_SETTINGS:
-            jobs = plan_jobs(cfg, outputs, split, scratch)
+        for setting, split in (*EXECUTION_SETTINGS, *GENERATED_EXECUTION_SETTINGS):
+            records = generated.get(setting) if setting.startswith("Gen-") else None
+            if setting.startswith("Gen-") and records is None:
+                continue  # no generator: the Gen rows are left out (the distill stage needs one, so never here)
+            jobs = plan_jobs(cfg, outputs, split, scratch, records, setting)
             say(f"[bold cyan]evaluate generalist[/] {setting}: {sum(len(j.keys) for j in jobs)} pose(s) x "
                 f"{stage.eval_trials} trial(s), {len(jobs)} job(s)")
             successes = [s for per_job in run_jobs(jobs, pool, say, setting) for s in per_job]
@@ -141,6 +151,35 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
         tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)
     return GeneralistReport(rows=rows, json_path=json_path, markdown=markdown)
+
+
+def _generated_records(cfg: PipelineConfig, say) -> dict[str, list]:
+    """The Gen rows' pre-grasps: per Gen setting the generator's kept pre-grasps of that split's first
+    ``generator.eval_scenes`` dual-object scenes, as ``evaluate execution --source generated`` picks them (the same
+    procedure and seeds, :func:`flows.evaluate_generated.generated_table`)."""
+    import sys
+
+    from components.hand import HandModel
+    from components.objects import ObjectLibrary
+    from flows.evaluate_generated import generated_table, load_generator_for
+    from tasks.preflight import cache_dir
+    from tasks.specialists import records_from_table
+    from tasks.synthesize import read_scene_records
+
+    scenes, _, model = load_generator_for(cfg, None, "evaluate generalist")
+    hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
+    scene_records = read_scene_records(scenes)
+    out = {}
+    for setting, split in GENERATED_EXECUTION_SETTINGS:
+        picked = [r for r in scene_records
+                  if r["split"] == split and len(r["objects"]) == EVALUATED_OBJECTS][: cfg.generator.eval_scenes]
+        frame, _ = generated_table(cfg, model, hand, library, picked, with_q1=False,
+                                   progress=lambda line, setting=setting: print(f"{setting}: {line}", file=sys.stderr,
+                                                                                flush=True))
+        kept = frame[frame["accepted"].astype(bool)]
+        out[setting] = records_from_table(kept) if len(kept) else []
+        say(f"[bold cyan]evaluate generalist[/] {setting}: {len(kept)} of {len(frame)} generated pre-grasps kept")
+    return out
 
 
 def generalist_markdown(rows: list[dict], source: str) -> str:
