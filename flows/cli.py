@@ -10,6 +10,7 @@
     multigrasp evaluate execution                     # lift success of the specialists (Syn-Pl / Com / Geo)
     multigrasp evaluate execution --source generated  # ... on the generator's pre-grasps (Gen-Pl / Com / Geo)
     multigrasp evaluate generalist                    # lift success of the distilled vision-based generalist
+    multigrasp evaluate curriculum                    # Table II(c): adapted specialists, w/o Adpt, w/o Curr
     multigrasp generate --objects cube,cylinder --n 16  # pre-grasps from the trained generator
     multigrasp ui                               # MLflow UI on 127.0.0.1 for the work dir
     multigrasp prune --profile bench --keep mini  # delete stage outputs no named config uses (--yes to delete)
@@ -220,9 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
                                     "`execution` lifts Syn-Pl / Syn-Com / Syn-Geo pre-grasps with the matching "
                                     "specialists (5 seeded trials per pose by default); `execution --source "
                                     "generated` lifts the generator's (Gen-Pl / Gen-Com / Gen-Geo).")
-    ev.add_argument("target", choices=["pregrasp", "execution", "generalist"],
-                    help="what to evaluate: pregrasp (Q1 / PN / Div), execution (lift success of the specialists) or "
-                         "generalist (lift success of the distilled vision-based generalist on the same poses)")
+    ev.add_argument("target", choices=["pregrasp", "execution", "generalist", "curriculum"],
+                    help="what to evaluate: pregrasp (Q1 / PN / Div), execution (lift success of the specialists), "
+                         "generalist (lift success of the distilled vision-based generalist on the same poses) or "
+                         "curriculum (Table II(c): the adapted specialists against w/o Adpt and w/o Curr on Gen-Pl)")
     ev.add_argument("--source", choices=["synthetic", "generated"], default=None,
                     help="where the pre-grasps come from: synthetic = the synthesize stage, generated = the "
                          "train-generator stage's model on the evaluation scenes (refined, kept by the paper's "
@@ -593,6 +595,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                                   "--source generated, or drop --ablations")
         with _using(cfg):
             report = evaluate_generated_execution(cfg)
+        print(report.markdown)
+        print(f"written: {report.json_path}")
+        return 0
+    if args.target == "curriculum":
+        from flows.evaluate_curriculum import evaluate_curriculum
+
+        if args.ablations or args.source not in (None, "generated"):
+            raise MultigraspError("evaluate curriculum lifts generated pre-grasps and is itself an ablation — drop "
+                                  "--source / --ablations")
+        with _using(cfg):
+            report = evaluate_curriculum(cfg)
         print(report.markdown)
         print(f"written: {report.json_path}")
         return 0

@@ -392,6 +392,7 @@ EVALUATION_IGNORES: dict[str, tuple[str, ...]] = {
     "ablation_execution.json": ("generator", "curriculum", "distill"),
     "execution_generated.json": ("curriculum", "distill"),
     "execution_generalist.json": (),
+    "ablation_curriculum.json": ("distill",),
 }
 
 

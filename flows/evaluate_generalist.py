@@ -153,7 +153,7 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
     return GeneralistReport(rows=rows, json_path=json_path, markdown=markdown)
 
 
-def _generated_records(cfg: PipelineConfig, say) -> dict[str, list]:
+def _generated_records(cfg: PipelineConfig, say, settings=GENERATED_EXECUTION_SETTINGS) -> dict[str, list]:
     """The Gen rows' pre-grasps: per Gen setting the generator's kept pre-grasps of that split's first
     ``generator.eval_scenes`` dual-object scenes, as ``evaluate execution --source generated`` picks them (the same
     procedure and seeds, :func:`flows.evaluate_generated.generated_table`)."""
@@ -170,7 +170,7 @@ def _generated_records(cfg: PipelineConfig, say) -> dict[str, list]:
     hand, library = HandModel(cfg.hand), ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     scene_records = read_scene_records(scenes)
     out = {}
-    for setting, split in GENERATED_EXECUTION_SETTINGS:
+    for setting, split in settings:
         picked = [r for r in scene_records
                   if r["split"] == split and len(r["objects"]) == EVALUATED_OBJECTS][: cfg.generator.eval_scenes]
         frame, _ = generated_table(cfg, model, hand, library, picked, with_q1=False,

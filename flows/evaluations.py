@@ -34,6 +34,7 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
     generator's and the execution's ablation variants too (each ablation specialist is trained: cached units)."""
     from flows.evaluate import evaluate_pregrasp
     from flows.evaluate_execution import evaluate_execution
+    from flows.evaluate_curriculum import evaluate_curriculum
     from flows.evaluate_generalist import evaluate_generalist
     from flows.evaluate_generated_execution import evaluate_generated_execution
 
@@ -49,6 +50,7 @@ def planned_evaluations(ablations: bool) -> list[Evaluation]:
         Evaluation("evaluate execution --source generated", ("execution_generated.json",),
                    evaluate_generated_execution),
         Evaluation("evaluate generalist", ("execution_generalist.json",), evaluate_generalist),
+        *([Evaluation("evaluate curriculum", ("ablation_curriculum.json",), evaluate_curriculum)] if ablations else []),
     ]
 
 

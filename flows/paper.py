@@ -53,6 +53,15 @@ PAPER_EXECUTION_ABLATIONS: dict[str, dict[str, Any]] = {
 }
 
 
+#: Table II(c), the adaptation rows (fraction): the paper's Ours* is measured "on a subset of objects".
+PAPER_CURRICULUM_ABLATIONS: dict[str, float] = {"Ours (curriculum)": 0.4525, "w/o Adpt": 0.2505, "w/o Curr": 0.2488}
+
+
+def curriculum_paper(setting: str) -> float | None:
+    """The paper's Table II(c) figure for a row of ``evaluate curriculum`` (its Ours* for ours)."""
+    return PAPER_CURRICULUM_ABLATIONS.get(setting)
+
+
 def pregrasp_paper(setting: str) -> dict[str, float] | None:
     """The paper's Table I pre-grasp figures for a row of ``evaluate pregrasp`` (None where it has none)."""
     return PAPER_PREGRASP.get(setting)

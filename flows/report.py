@@ -18,8 +18,8 @@ from typing import Any
 
 from components.errors import MultigraspError
 from flows.evaluate import _fmt as _num
-from flows.paper import (PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST, PAPER_GENERATOR_ABLATIONS,
-                         PAPER_PREGRASP)
+from flows.paper import (PAPER_CURRICULUM_ABLATIONS, PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST,
+                         PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
 from tasks.artifacts import atomic_write_text
 
 #: results file → the command that writes it.
@@ -31,6 +31,7 @@ SOURCES = {
     "ablation_generator.json": "multigrasp evaluate pregrasp --source generated --ablations",
     "ablation_execution.json": "multigrasp evaluate execution --ablations",
     "execution_generalist.json": "multigrasp evaluate generalist",
+    "ablation_curriculum.json": "multigrasp evaluate curriculum",
 }
 
 #: the results files of Table I (``run --evaluate`` computes them; the ablation files need ``--ablations``).
@@ -148,6 +149,15 @@ def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: di
     return lines
 
 
+def table_curriculum(rows: dict[str, dict]) -> list[str]:
+    """Table II(c)'s adaptation rows: the curriculum's specialists against w/o Adpt and w/o Curr on Gen-Pl."""
+    lines = ["**(c) Adaptation** (Gen-Pl, `multigrasp evaluate curriculum`; the paper's Ours* is on a subset of "
+             "objects)", "", "| setting | succ ↑ |", "|---|---|"]
+    for setting, paper in PAPER_CURRICULUM_ABLATIONS.items():
+        lines.append(f"| {setting} | {_cell(_pct(rows.get(setting, {}).get('succ')), _pct(paper))} |")
+    return lines
+
+
 def write_report(workdir: Path, parent_run_id: str | None = None, experiment: str | None = None) -> Report:
     """Write ``<workdir>/results/report.md`` from the evaluation results there (module docstring)."""
     results = Path(workdir) / "results"
@@ -184,6 +194,7 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
                                                           syn_pl_marked=bool(syn_source))
     if ablation_source or (syn_source and "Ours" not in ablation_execution):
         lines += ["", _plumbing_note(ablation_source or syn_source)]
+    lines += [""] + table_curriculum(_rows(data["ablation_curriculum.json"]))
     markdown = "\n".join(lines) + "\n"
     path = atomic_write_text(results / "report.md", markdown)
     csv_path = atomic_write_text(results / "report.csv", csv_text)
@@ -212,7 +223,7 @@ def _csv_of(data: dict[str, dict[str, Any] | None]) -> str:
                       _rows(data["ablation_execution.json"]), _rows(data["ablation_generator.json"]),
                       frozenset(_rows(data["execution.json"])) if syn_source else frozenset(),
                       plumbing_only(data["ablation_execution.json"]), syn_source,
-                      _rows(data["execution_generalist.json"]))
+                      _rows(data["execution_generalist.json"]), _rows(data["ablation_curriculum.json"]))
 
 
 def figures(data: dict[str, dict[str, Any] | None]) -> list[dict[str, str]]:
@@ -271,7 +282,8 @@ def _profiles(data: dict[str, dict[str, Any] | None]) -> str:
 
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
                generator: dict[str, dict], marked: frozenset[str] = frozenset(), ablation_source: str | None = None,
-               syn_source: str | None = None, generalist: dict[str, dict] | None = None) -> str:
+               syn_source: str | None = None, generalist: dict[str, dict] | None = None,
+               curriculum: dict[str, dict] | None = None) -> str:
     """The report's figures as long-format CSV: ``table,setting,metric,here,paper,note`` (empty where not measured).
     ``note`` names a success figure's ``records_source`` where its poses were not accepted pre-grasps (Table I's
     settings in ``marked``; the execution ablations under ``ablation_source``; Ours from Table I under
@@ -303,6 +315,8 @@ def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_e
         PAPER_EXECUTION["Syn-Pl"], ablation_source if "Ours" in ablation_execution else syn_source)
     for setting, paper in PAPER_EXECUTION_ABLATIONS.items():
         put("II(b,c)", setting, "succ", ablation_execution.get(setting, {}).get("succ"), paper["succ"], ablation_source)
+    for setting, paper in PAPER_CURRICULUM_ABLATIONS.items():
+        put("II(c)", setting, "succ", (curriculum or {}).get(setting, {}).get("succ"), paper)
     return out.getvalue()
 
 
@@ -332,6 +346,7 @@ EVALUATED_FROM = {
     "ablation_execution.json": [("specialists_manifest", "specialists")],
     "ablation_generator.json": [("generator_manifest", "train-generator")],
     "execution_generalist.json": [("distill_manifest", "distill")],
+    "ablation_curriculum.json": [("curriculum_manifest", "curriculum")],
 }
 
 

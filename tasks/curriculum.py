@@ -7,8 +7,8 @@ Units:
   1. ``synthetic``: the bin's training pre-grasps (the specialist's ``records.json``); ``reached``: those of them the
      reach stage reached (its end-of-reach states, matched by scene id and table row); ``generated``: new settled
      placements of the bin's objects (``generated_scenes``, seeded by the bin), ``generated_per_scene`` pre-grasps
-     each from the trained generator (sampling, IK, refinement as ``generator.*``), those the paper's protocol filter
-     keeps (``generator.eval_filter``) and that fall in the bin's placement sector (all kept ones of the combination
+     each from the trained generator (sampling, IK, refinement as ``generator.*``), those that fall in the bin's
+     placement sector (and, with ``filter_generated``, that the paper's protocol filter keeps: ``generator.eval_filter``) (all kept ones of the combination
      when none does), each reached from an open hand in PyBullet (``reach.reaching``) -> ``generated.json``.
   2. PPO continues from the specialist's checkpoint (``policy.pt``, copied) with ``specialists.ppo``, for
      ``phase_iterations[k]`` iterations per phase over that phase's starts (``phase<k>.json``).  Each phase selects
@@ -83,14 +83,17 @@ def generated_starts(label: str, synthetic: list, stage: CurriculumConfig, gener
                                                synthesis_stage.metrics).pn_mm, dtype=torch.float64)
         ratio = contact_ratio(hand, objects, refined.p, refined.R, refined.q, synthesis,
                               generator_stage.eval_filter.contact_distance_m)
-        keep = keep_generated(pn.to(ratio.dtype), ratio, generator_stage.eval_filter)
+        keep = keep_generated(pn.to(ratio.dtype), ratio, generator_stage.eval_filter) if stage.filter_generated \
+            else torch.ones_like(ratio, dtype=torch.bool)
         for i in np.flatnonzero(keep.numpy()):
             kept.append(GraspRecord(scene=scene, p=refined.p[i].detach().numpy().astype(float),
                                     R=refined.R[i].detach().numpy().astype(float),
                                     q=refined.q[i].detach().numpy().astype(float),
                                     meta={"source": "generated", "scene_id": f"{label}#generated{number}", "row": int(i),
                                           "combination": "+".join(names)}))
-        progress(f"{int(keep.sum())}/{n} generated pre-grasps kept on placement {number + 1}/{stage.generated_scenes}")
+        progress(f"{int(keep.sum())}/{n} generated pre-grasps kept on placement {number + 1}/{stage.generated_scenes}"
+                 f"{' (the protocol filter)' if stage.filter_generated else ' (unfiltered: curriculum.filter_generated)'}"
+                 f", PN median {float(pn.median()):.1f} mm")
     in_bin = [r for r in kept if bin_label(r, clustering) == label]
     chosen = in_bin or kept
     if not chosen:

@@ -478,9 +478,8 @@ def test_a_lift_jobs_setting_counts_the_gif_quota_only_for_the_jobs_that_make_gi
 
 # --------------------------------------------------------------------------- curriculum, distill, the generalist
 
-#: The curriculum's generated starts kept whatever their penetration (the smoke generator is barely trained), one
-#: PPO iteration per phase; a two-iteration DAgger.
-ADAPT = ["generator.eval_filter.enabled=false", "curriculum.generated_per_scene=2", "curriculum.phase_iterations=[1,1,1]",
+#: Two generated starts per bin (unfiltered, the default), one PPO iteration per phase; a two-iteration DAgger.
+ADAPT = ["curriculum.generated_per_scene=2", "curriculum.phase_iterations=[1,1,1]",
          "distill.dagger.iterations=2", "distill.dagger.episodes_per_iteration=2"]
 
 

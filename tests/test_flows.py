@@ -545,3 +545,41 @@ def test_unit_task_runs_are_named_after_their_unit_and_the_console_lines_say_whi
                                                "state Completed()")
     plain = logging.LogRecord("flows.cli", logging.WARNING, __file__, 1, "a warning", None, None)
     assert RunNameFormatter().format(plain) == "WARNING flows.cli: a warning"
+
+
+def test_evaluate_curriculum_lifts_the_same_poses_with_the_adapted_the_plain_and_the_unphased_specialists(
+        smoke_runs, monkeypatch):
+    """Table II(c): the curriculum's specialists, the plain ones (w/o Adpt) and those adapted without phases (w/o
+    Curr, trained here) lift the same Gen-Pl poses.  The smoke generator's pre-grasps all fail the protocol filter,
+    so the smoke Syn-Pl pre-grasps stand in for them here."""
+    import json
+
+    import flows.evaluate_generalist
+    from flows.evaluate_curriculum import OURS
+    from flows.pipeline import stage_output
+    from tasks.artifacts import read_manifest
+    from tasks.specialists import select_records
+
+    workdir, _, _ = smoke_runs
+
+    def stand_in(cfg, say, settings=()):
+        return {"Gen-Pl": select_records(stage_output(cfg, "synthesize"), cfg.specialists, ["Pl"])}
+
+    monkeypatch.setattr(flows.evaluate_generalist, "_generated_records", stand_in)
+    argv = ["evaluate", "curriculum", "--profile", "smoke", "--workdir", str(workdir), "--max-workers", "1",
+            "--set", "specialists.eval_poses=2", "--set", "specialists.eval_trials=1"]
+    assert main(argv) == 0
+    data = json.loads((workdir / "results" / "ablation_curriculum.json").read_text())
+    rows = data["rows"]
+    assert [r["setting"] for r in rows] == [OURS, "w/o Adpt", "w/o Curr"]
+    assert [r["paper"] for r in rows] == [0.4525, 0.2505, 0.2488]
+    assert rows[0]["n_poses"] == rows[1]["n_poses"] == rows[2]["n_poses"] == 2
+    stages = [Path(r["specialists_manifest"]).parent for r in rows]
+    assert [s.parent.name for s in stages] == ["curriculum", "specialists", "curriculum"] and stages[0] != stages[2]
+    # w/o Curr: every phase starts from all of the bin's starts alike
+    index = json.loads(read_manifest(stages[2]).path("index").read_text())
+    unit = Path(next(iter(index.values()))["folder"])
+    assert all((unit / f"phase{k}.json").read_text() == (unit / "phase1.json").read_text() for k in (2, 3))
+    assert main(["report", "--workdir", str(workdir)]) == 0
+    report = (workdir / "results" / "report.md").read_text()
+    assert "(c) Adaptation" in report and "| w/o Curr |" in report

@@ -61,7 +61,7 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
         assert f"| {name} | – | not yet | `{SOURCES[name]}` |" in text
     report = write_report(tmp_path)
     assert report.missing == ["pregrasp_generated.json", "execution_generated.json", "ablation_generator.json",
-                              "execution_generalist.json"]
+                              "execution_generalist.json", "ablation_curriculum.json"]
     # the same figures as CSV (table, setting, metric, here, paper), both logged to an MLflow run of their own
     import csv
 
@@ -233,7 +233,8 @@ def test_run_evaluate_plans_the_ablations_only_when_asked_and_redoes_a_partial_a
     from flows.report import EvaluationStatus
 
     names = ("pregrasp_synthetic.json", "pregrasp_generated.json", "execution.json", "execution_generated.json",
-             "ablation_generator.json", "ablation_execution.json", "execution_generalist.json")
+             "ablation_generator.json", "ablation_execution.json", "execution_generalist.json",
+             "ablation_curriculum.json")
     states = dict.fromkeys(names, ("current", True))
 
     def fake_status(cfg, finals=None):

@@ -14,13 +14,14 @@ Three pools of starts per specialist bin:
 :func:`phase_starts` gives each phase's starts as one list that a uniform draw samples in the phase's proportions
 (each pool repeated in turn to its share): phase 1 synthetic only; phase 2 ``phase2_imprecise_share`` from the
 imprecise pools (reached and generated alike), the rest synthetic; phase 3 ``phase3_generated_share`` generated, the
-rest from the other two.  A pool that is empty hands its share to the others.
+rest from the other two.  A pool that is empty hands its share to the others.  ``schedule: mixed`` (the paper's
+"w/o Curr") draws every phase from all the starts alike.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TypeVar
+from typing import Literal, TypeVar
 
 from pydantic import Field
 
@@ -43,6 +44,17 @@ class CurriculumConfig(Section):
     phase3_generated_share: float = Field(
         0.8, ge=0.0, le=1.0, description="Phase 3: share of the episodes that start from reached generated pre-grasps "
         "(the paper's 'predominantly'); the rest from the synthetic and reached synthetic ones.")
+    schedule: Literal["phased", "mixed"] = Field(
+        "phased",
+        description="phased: the paper's three phases (module docstring).  mixed: every phase draws from all the starts "
+        "alike (synthetic, reached and generated together), the same iterations: adaptation without the structured "
+        "curriculum, the paper's 'w/o Curr' (multigrasp evaluate curriculum trains it).")
+    filter_generated: bool = Field(
+        False,
+        description="Keep only the generated pre-grasps that the paper's protocol filter keeps (generator.eval_filter: "
+        "penetration and contact ratio).  False (default): every generated pre-grasp of the bin's sector is reached "
+        "and used -- the paper's imprecise poses are the generator's own, and the filter is its evaluation's protocol; "
+        "on the mini generator (600 steps) the filter kept 0 of 32 (fifty-eighth session).")
     generated_scenes: int = Field(2, ge=1, description="New placements of the bin's objects sampled (and settled) per bin for its generated pre-grasps.")
     generated_per_scene: int = Field(8, ge=1, description="Generated pre-grasps per placement (before the protocol filter and the bin's sector).")
     seed: int = Field(0, ge=0, description="Seed of the placements and the generator's noise.")
@@ -67,7 +79,10 @@ def mix(pools: Sequence[tuple[Sequence[T], float]]) -> list[T]:
 
 def phase_starts(phase: int, synthetic: Sequence[T], reached: Sequence[T], generated: Sequence[T],
                  cfg: CurriculumConfig) -> list[T]:
-    """The starts of phase ``phase`` (1, 2 or 3; module docstring)."""
+    """The starts of phase ``phase`` (1, 2 or 3; module docstring); with ``schedule`` 'mixed' every phase's are all
+    the starts."""
+    if phase in range(1, PHASES + 1) and cfg.schedule == "mixed":
+        return [*synthetic, *reached, *generated]
     if phase == 1:
         return list(synthetic)
     if phase == 2:
