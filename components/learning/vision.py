@@ -46,7 +46,10 @@ class VisionConfig(Section):
     target_height_m: float = Field(0.06, description="Height of the look-at point above the objects' start centre (m).")
     width: int = Field(
         160, ge=8, le=1024,
-        description="Depth image width (pixels).  160 x 120 at 0.4 m and 45 degrees: ~2.7 mm per pixel at the objects, ~770 object pixels of ~11,000 in the three views of a dual-object pre-grasp; the three renders take ~66 ms on one core (80 x 60 at 0.55 m and 55 degrees: 46 ms, but only 70 object pixels; measured in the fifty-eighth session).")
+        description="Depth image width (pixels).  160 x 120 at 0.4 m and 45 degrees: ~2.7 mm per pixel at the objects, "
+        "771 object pixels of 10,955 in the three views of a dual-object pre-grasp; the three renders take 42 ms and the "
+        "whole feature (renders, re-sampling, encoder) 114 ms on one core, against 185 object pixels and 44 / 91 ms at "
+        "80 x 60 (python -m benchmarks.scene_cloud, medians of 5, the other core busy; fifty-eighth session).")
     height: int = Field(120, ge=8, le=1024, description="Depth image height (pixels).")
     fov_deg: float = Field(45.0, gt=1.0, lt=170.0, description="Vertical field of view (degrees).")
     near_m: float = Field(0.05, gt=0.0, description="Near clipping plane (m).")
