@@ -7,6 +7,7 @@ import json
 
 from prefect import flow
 
+from components.errors import MultigraspError
 from flows.config import PipelineConfig
 from flows.runtime import (StageProgress, StageResult, make_console, make_task_runner, make_tracker, single_unit,
                            start_stage_run, unit_task)
@@ -41,6 +42,10 @@ def distill_flow(cfg: PipelineConfig, parent_run_id: str, upstream: dict[str, Ma
     tracker = make_tracker(cfg)
     run_id = start_stage_run(tracker, cfg, STAGE, SETTINGS, parent_run_id)
     index = read_specialist_index(upstream["curriculum"])  # the adapted specialists teach
+    if not index:
+        raise MultigraspError("distill: the specialists stage trained no specialist for this config (no pre-grasps "
+                              "to train on: see the synthesize stage's report.md), so there is nothing to distil; "
+                              "every stage before it is kept")
     dagger = cfg.distill.dagger
     console = make_console()
     console.print(f"[bold cyan]{STAGE}[/] {len(index)} specialist(s) -> one generalist: {dagger.iterations} DAgger "

@@ -219,3 +219,15 @@ def test_the_scene_cloud_benchmark_writes_its_timings(tmp_path):
     row, = json.loads(out.read_text())["rows"]
     assert row["width"] == 32 and row["cameras"] == 3 and 0 < row["render_s"] <= row["feature_s"]
     assert 0 < row["object_pixels"] < row["scene_pixels"]
+
+
+def test_distill_with_no_specialist_to_distil_is_one_line(tmp_path, monkeypatch):
+    """A config whose synthesis accepted nothing trains no specialist: distill says so in one line (the stages before
+    it are kept), instead of failing inside DAgger."""
+    import flows.distill
+    from flows.config import load_config
+
+    monkeypatch.setattr(flows.distill, "read_specialist_index", lambda manifest: {})
+    cfg = load_config("smoke", workdir=tmp_path)
+    with pytest.raises(MultigraspError, match="trained no specialist .* nothing to distil"):
+        flows.distill.distill_flow.fn(cfg, None, {"curriculum": None, "pointnet": None})
