@@ -89,7 +89,9 @@ def evaluate_curriculum(cfg: PipelineConfig, parent_run_id: str | None = None) -
     tracker = make_tracker(cfg)
     run_id = start_evaluation_run(tracker, cfg, "evaluate:curriculum", RESULTS_FILE, parent_run_id,
                                   tags={"command": "evaluate", "evaluation": "curriculum", "profile": cfg.profile})
-    tracker.log_metrics(run_id, {f"{r['setting']}/succ": r["succ"] for r in rows if r["succ"] is not None})
+    # MLflow metric names take no parentheses: "Ours (curriculum)/succ" is logged as "Ours curriculum/succ"
+    tracker.log_metrics(run_id, {f"{r['setting'].replace('(', '').replace(')', '')}/succ": r["succ"] for r in rows
+                                 if r["succ"] is not None})
     for path in (json_path, markdown_path):
         tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)
