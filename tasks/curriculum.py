@@ -7,9 +7,10 @@ Units:
   1. ``synthetic``: the bin's training pre-grasps (the specialist's ``records.json``); ``reached``: those of them the
      reach stage reached (its end-of-reach states, matched by scene id and table row); ``generated``: new settled
      placements of the bin's objects (``generated_scenes``, seeded by the bin), ``generated_per_scene`` pre-grasps
-     each from the trained generator (sampling, IK, refinement as ``generator.*``), those that fall in the bin's
-     placement sector (and, with ``filter_generated``, that the paper's protocol filter keeps: ``generator.eval_filter``) (all kept ones of the combination
-     when none does), each reached from an open hand in PyBullet (``reach.reaching``) -> ``generated.json``.
+     each from the trained generator (sampling, IK, refinement as ``generator.*``) that fall in the bin's placement
+     sector (all of the combination's when none does; with ``filter_generated`` only those the paper's protocol
+     filter keeps, ``generator.eval_filter``), each reached from an open hand in PyBullet (``reach.reaching``) ->
+     ``generated.json``.
   2. PPO continues from the specialist's checkpoint (``policy.pt``, copied) with ``specialists.ppo``, for
      ``phase_iterations[k]`` iterations per phase over that phase's starts (``phase<k>.json``).  Each phase selects
      its best validated actor afresh on its own starts (``specialists.validation_*``), so the adapted specialist is

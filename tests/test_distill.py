@@ -161,9 +161,12 @@ def test_dagger_labels_every_state_with_the_teacher_and_resumes_from_its_checkpo
     assert first.samples == 2 * env.cfg.max_steps and first.history[0]["beta"] == 1.0
     assert isinstance(validations[0], VisionPolicy)
     student = load_student(tmp_path / "student.pt")
-    observer = StudentObserver(env, cameras)
-    action = student(observer(env.reset()))
-    assert torch.allclose(action, torch.full((24,), 0.3), atol=0.05)  # it learned the teacher's action
+    pairs = torch.load(data_folder(tmp_path / "student.pt") / "iteration-0001.pt", weights_only=True)
+    assert torch.allclose(pairs["labels"], torch.full_like(pairs["labels"], 0.3))  # every state: the teacher's action
+    with torch.no_grad():  # it learned the teacher's action on its data, and acts near it from a fresh start
+        assert (student(pairs["observations"]) - 0.3).abs().mean() < 0.03
+        action = student(StudentObserver(env, cameras)(env.reset()))
+    assert abs(float(action.mean()) - 0.3) < 0.1
     more = run_dagger(bins, cameras, cfg.model_copy(update={"iterations": 2}), tmp_path / "student.pt", validate=validate)
     assert more.resumed_from == 1 and [h["iteration"] for h in more.history] == [1, 2]
     assert more.samples == 4 * env.cfg.max_steps and more.history[1]["beta"] == 0.5
