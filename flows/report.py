@@ -95,10 +95,10 @@ def _plumbing_note(source: str) -> str:
 
 
 def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: frozenset[str] = frozenset(),
-              generalist: dict[str, dict] | None = None) -> list[str]:
+              generalist: dict[str, dict] | None = None, generalist_marked: bool = False) -> list[str]:
     """Table I: pre-grasp quality and execution success per setting, this run (paper); the success of the settings
     in ``marked`` carries :data:`PLUMBING_MARK`.  ``generalist``: the distilled generalist's rows (the paper's figure
-    after the slash), a column of their own."""
+    after the slash), a column of their own, marked too with ``generalist_marked``."""
     generalist = generalist or {}
     lines = ["| setting | Q1 ↑ | PN (mm) ↓ | Div (deg) | s per 256 ↓ | succ ↑ | generalist succ ↑ | accepted / kept | n |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -107,12 +107,13 @@ def table_one(pregrasp: dict[str, dict], execution: dict[str, dict], marked: fro
         time_here = _num(row.get("time_256_s"), 2)
         time_paper = _num(paper.get("time_256_s"), 2) if "time_256_s" in paper else "≈ 1000 total"
         succ_row = execution.get(setting, {})
+        gen_succ = generalist.get(setting, {}).get("succ")
         lines.append(
             f"| {setting} | {_cell(_num(row.get('q1'), 3), _num(paper['q1'], 2))} | "
             f"{_cell(_num(row.get('pn_mm'), 2), _num(paper['pn_mm'], 2))} | "
             f"{_cell(_num(row.get('div_deg'), 2), _num(paper['div_deg'], 2))} | {_cell(time_here, time_paper)} | "
             f"{_cell(_pct(succ_row.get('succ')) + _mark(setting in marked, succ_row.get('succ')), _pct(PAPER_EXECUTION.get(setting)))} | "
-            f"{_cell(_pct(generalist.get(setting, {}).get('succ')), _pct(PAPER_GENERALIST.get(setting)))} | "
+            f"{_cell(_pct(gen_succ) + _mark(generalist_marked, gen_succ), _pct(PAPER_GENERALIST.get(setting)))} | "
             f"{_pct(row.get('accept_rate'))} | {row.get('n', '–')} |")
     return lines
 
@@ -179,16 +180,17 @@ def write_report(workdir: Path, parent_run_id: str | None = None, experiment: st
     syn_source = plumbing_only(data["execution.json"])
     ablation_source = plumbing_only(data["ablation_execution.json"])
     marked = frozenset(_rows(data["execution.json"])) if syn_source else frozenset()
+    generalist_source = plumbing_only(data["execution_generalist.json"])
     lines += ["", "## Table I: pre-grasp quality and execution", ""] + table_one(
-        pregrasp, execution, marked, _rows(data["execution_generalist.json"]))
+        pregrasp, execution, marked, _rows(data["execution_generalist.json"]), bool(generalist_source))
     lines += ["", "Q1: mean over the accepted (generated: kept) grasps of the minimum over a grasp's objects; the "
                   "paper gives no Q1 constants (README 'Reading Q1'). succ: the specialists' success (all objects "
                   "above 10 cm), 5 trials per pose; the Gen rows' are the same specialists lifting the generator's "
                   "kept pre-grasps, as the paper's. generalist succ: the distilled vision-based student on the same "
                   "Syn poses and trials (`multigrasp evaluate generalist`); the paper gives it for Syn-Pl and Gen-Pl "
                   "only."]
-    if syn_source:
-        lines += ["", _plumbing_note(syn_source)]
+    if syn_source or generalist_source:
+        lines += ["", _plumbing_note(syn_source or generalist_source)]
     lines += ["", "## Table II: ablations", ""] + table_two(_rows(data["ablation_generator.json"]), ablation_execution,
                                                           execution.get("Syn-Pl", {}), marked=bool(ablation_source),
                                                           syn_pl_marked=bool(syn_source))
@@ -223,7 +225,8 @@ def _csv_of(data: dict[str, dict[str, Any] | None]) -> str:
                       _rows(data["ablation_execution.json"]), _rows(data["ablation_generator.json"]),
                       frozenset(_rows(data["execution.json"])) if syn_source else frozenset(),
                       plumbing_only(data["ablation_execution.json"]), syn_source,
-                      _rows(data["execution_generalist.json"]), _rows(data["ablation_curriculum.json"]))
+                      _rows(data["execution_generalist.json"]), _rows(data["ablation_curriculum.json"]),
+                      plumbing_only(data["execution_generalist.json"]))
 
 
 def figures(data: dict[str, dict[str, Any] | None]) -> list[dict[str, str]]:
@@ -283,7 +286,7 @@ def _profiles(data: dict[str, dict[str, Any] | None]) -> str:
 def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_execution: dict[str, dict],
                generator: dict[str, dict], marked: frozenset[str] = frozenset(), ablation_source: str | None = None,
                syn_source: str | None = None, generalist: dict[str, dict] | None = None,
-               curriculum: dict[str, dict] | None = None) -> str:
+               curriculum: dict[str, dict] | None = None, generalist_source: str | None = None) -> str:
     """The report's figures as long-format CSV: ``table,setting,metric,here,paper,note`` (empty where not measured).
     ``note`` names a success figure's ``records_source`` where its poses were not accepted pre-grasps (Table I's
     settings in ``marked``; the execution ablations under ``ablation_source``; Ours from Table I under
@@ -306,7 +309,7 @@ def report_csv(pregrasp: dict[str, dict], execution: dict[str, dict], ablation_e
         put("I", setting, "succ", execution.get(setting, {}).get("succ"), PAPER_EXECUTION.get(setting),
             syn_source if setting in marked else None)
         put("I", setting, "succ_generalist", (generalist or {}).get(setting, {}).get("succ"),
-            PAPER_GENERALIST.get(setting), syn_source if setting in marked else None)
+            PAPER_GENERALIST.get(setting), generalist_source)
     for setting, paper in PAPER_GENERATOR_ABLATIONS.items():
         row = generator.get(setting, {})
         for metric in ("q1", "pn_mm"):

@@ -108,6 +108,14 @@ def test_success_lifted_from_unaccepted_candidates_is_marked_as_a_plumbing_check
     (results / "ablation_execution.json").unlink()
     text = write_report(tmp_path).markdown
     assert "| 34.6 % (68.3 %) |" in text and "†" not in text
+    # the generalist's column: lifted from the smoke profile's candidates it is marked too, with the paper's 44.13 %
+    (results / "execution_generalist.json").write_text(json.dumps({**smoke, "rows": [
+        {"setting": "Syn-Pl", "succ": 0.0, "n_poses": 20, "trials": 5}]}))
+    report = write_report(tmp_path)
+    assert "| 34.6 % (68.3 %) | 0.0 % † (44.1 %) |" in report.markdown and "not a result" in report.markdown
+    rows = {(r["table"], r["setting"], r["metric"]): r for r in csv.DictReader(report.csv_path.open())}
+    assert rows[("I", "Syn-Pl", "succ_generalist")]["paper"] == "0.4413"
+    assert "lowest_energy" in rows[("I", "Syn-Pl", "succ_generalist")]["note"]
 
 
 def test_report_errors_are_one_line(tmp_path, capsys):
