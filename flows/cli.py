@@ -583,40 +583,40 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _single_report_evaluation(args: argparse.Namespace):
+    """The evaluation function of the ``evaluate`` targets that write one results file (``execution --source
+    generated``, ``curriculum``, ``generalist``), after a one-line error for an option it does not take; None for the
+    others."""
+    if args.target == "execution" and args.source == "generated":
+        if args.ablations:
+            raise MultigraspError("--ablations applies to `evaluate execution` of synthesised pre-grasps — drop "
+                                  "--source generated, or drop --ablations")
+        from flows.evaluate_generated_execution import evaluate_generated_execution
+
+        return evaluate_generated_execution
+    if args.target not in ("curriculum", "generalist"):
+        return None
+    if args.ablations or args.source is not None:
+        what = ("lifts generated pre-grasps and is itself an ablation (Table II(c))" if args.target == "curriculum"
+                else "lifts both the synthesised and the generated pre-grasps (Syn and Gen rows) and has no ablations")
+        raise MultigraspError(f"evaluate {args.target} {what} — drop --source / --ablations")
+    if args.target == "curriculum":
+        from flows.evaluate_curriculum import evaluate_curriculum
+
+        return evaluate_curriculum
+    from flows.evaluate_generalist import evaluate_generalist
+
+    return evaluate_generalist
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from flows.evaluate import evaluate_pregrasp
 
     cfg = _load(args)
-    if args.target == "execution" and args.source == "generated":
-        from flows.evaluate_generated_execution import evaluate_generated_execution
-
-        if args.ablations:
-            raise MultigraspError("--ablations applies to `evaluate execution` of synthesised pre-grasps — drop "
-                                  "--source generated, or drop --ablations")
+    single = _single_report_evaluation(args)
+    if single is not None:
         with _using(cfg):
-            report = evaluate_generated_execution(cfg)
-        print(report.markdown)
-        print(f"written: {report.json_path}")
-        return 0
-    if args.target == "curriculum":
-        from flows.evaluate_curriculum import evaluate_curriculum
-
-        if args.ablations or args.source not in (None, "generated"):
-            raise MultigraspError("evaluate curriculum lifts generated pre-grasps and is itself an ablation — drop "
-                                  "--source / --ablations")
-        with _using(cfg):
-            report = evaluate_curriculum(cfg)
-        print(report.markdown)
-        print(f"written: {report.json_path}")
-        return 0
-    if args.target == "generalist":
-        from flows.evaluate_generalist import evaluate_generalist
-
-        if args.ablations or args.source not in (None, "synthetic"):
-            raise MultigraspError("evaluate generalist lifts the synthesised pre-grasps and has no ablations — drop "
-                                  "--source / --ablations")
-        with _using(cfg):
-            report = evaluate_generalist(cfg)
+            report = single(cfg)
         print(report.markdown)
         print(f"written: {report.json_path}")
         return 0

@@ -545,6 +545,14 @@ def test_evaluate_generalist_without_the_distill_stage_names_the_command(tmp_pat
     assert "run --until distill" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("target, option", [("generalist", "--ablations"), ("generalist", "--source=generated"),
+                                            ("curriculum", "--source=synthetic"), ("curriculum", "--ablations")])
+def test_evaluate_generalist_and_curriculum_name_the_options_they_do_not_take(tmp_path, capsys, target, option):
+    assert main(["evaluate", target, option, "--profile", "smoke", "--workdir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"evaluate {target} " in err and "drop --source / --ablations" in err and "Traceback" not in err
+
+
 def test_a_curriculum_killed_in_phase_two_resumes_there_and_keeps_its_generated_starts(runs, monkeypatch):
     import components.execution.ppo as ppo
     import tasks.curriculum
