@@ -208,8 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     ge.add_argument("--seed", type=int, default=0, help="seed of the scene sampling and of the diffusion noise")
     ge.add_argument("--lift", action="store_true",
                     help="then lift the grasps the paper's protocol filter keeps in PyBullet with the matching "
-                         "specialists (and w/o RL, the scripted squeeze): lift.json, per-pose outcomes and GIFs "
-                         "beside the grasps; two objects; needs the specialists stage")
+                         "specialists (and w/o RL, the scripted squeeze; the distilled generalist where the "
+                         "distill stage has run): lift.json, per-pose outcomes and GIFs beside the grasps; two "
+                         "objects; needs the specialists stage")
     _config_args(ge)
 
     ev = sub.add_parser("evaluate", help="evaluation tables (pregrasp: Q1 / PN / Div per split; execution: lift success)",
@@ -662,8 +663,9 @@ def _cmd_generate(args: argparse.Namespace) -> int:
                 return "–" if rate is None else f"{100 * rate:.1f} %"
 
             print(f"lift: {lifted.poses} pose(s) x {lifted.trials} trial(s) with {', '.join(lifted.specialists) or '-'}: "
-                  f"specialist {pct(lifted.succ)}, w/o RL {pct(lifted.without_rl)}, squeeze {pct(lifted.squeeze)}; "
-                  f"{lifted.path} ({len(lifted.gifs)} GIF(s))")
+                  f"specialist {pct(lifted.succ)}, w/o RL {pct(lifted.without_rl)}, squeeze {pct(lifted.squeeze)}"
+                  + ("" if lifted.generalist is None else f", generalist {pct(lifted.generalist)}")
+                  + f"; {lifted.path} ({len(lifted.gifs)} GIF(s))")
     print(f"MLflow run {report.run_id} (generate:{report.folder.name.rsplit('-', 1)[0]})")
     return 0
 

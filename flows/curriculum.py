@@ -29,10 +29,14 @@ SETTINGS: tuple[str, ...] = ("curriculum", "specialists", "generator", "synthesi
 def config_digest(cfg: PipelineConfig) -> str:
     """The config part of every adapted bin's key: the curriculum, what shapes a specialist's training
     (:func:`flows.specialists.bin_config_digest`) and what makes the generated starts (the generator's sampling, IK,
-    refinement and filter, the synthesis settings the refinement and PN use, the placements' sampling, the reach)."""
+    refinement, the protocol filter where ``curriculum.filter_generated`` applies it, the synthesis settings the
+    refinement and PN use, the placements' sampling, the reach).  Without ``filter_generated`` the filter decides
+    nothing here, so ``generate --lift --set generator.eval_filter.enabled=false`` still finds the adapted specialists
+    and the generalist distilled from them."""
+    filtered = ("generator.eval_filter",) if cfg.curriculum.filter_generated else ()
     return digest({"specialist": bin_config_digest(cfg),
                    "sections": section_digest(cfg, "curriculum", "specialists.clustering", "generator.sampler",
-                                              "generator.ik", "generator.refine", "generator.eval_filter",
+                                              "generator.ik", "generator.refine", *filtered,
                                               "generator.model.points_per_object", "generator.model.max_objects",
                                               "synthesis.optimizer", "synthesis.optimizer_by_object_count",
                                               "synthesis.metrics", "scenes.sampling", "reach.reaching")})

@@ -22,7 +22,8 @@ from pathlib import Path
 
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, evaluation_key, section_digest
-from flows.evaluate_execution import EVALUATED_OBJECTS, EXECUTION_SETTINGS, lift_env_factory, lift_pool, pose_chunks, pose_key
+from flows.evaluate_execution import (EVALUATED_OBJECTS, EXECUTION_SETTINGS, lift_env_factory, lift_pool, pose_chunks,
+                                      pose_key, reached_once)
 from flows.evaluate_generated_execution import GENERATED_EXECUTION_SETTINGS
 from flows.paper import generalist_paper
 from tasks.artifacts import atomic_write_json, atomic_write_text
@@ -48,13 +49,17 @@ def _outputs(cfg: PipelineConfig) -> dict:
 
 
 def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, records: list | None = None,
-              name: str | None = None) -> list:
+              name: str | None = None, cached: bool = True, reach_memo: dict | None = None) -> list:
     """The generalist's lift jobs of one split (module docstring); ``records``: the pre-grasps to lift instead of the
-    synthesize stage's (the generator's), ``name`` the jobs' unit name part (default: the split)."""
+    synthesize stage's (the generator's), ``name`` the jobs' unit name part (default: the split); ``cached``: False
+    for a one-off lift (``generate --lift``), whose jobs have no unit.  With ``specialists.eval_after_reach`` each pose
+    is reached first, once per ``reach_memo`` (:func:`flows.evaluate_execution.reached_once`), and lifted from where
+    the reach left hand and objects, as the specialists lift it."""
     from components.execution.records import record_to_dict
     from components.hand import HandModel
     from components.hand.model import URDF_FILE_NAME
-    from tasks.artifacts import code_version, sha256_file
+    from components.objects import ObjectLibrary
+    from tasks.artifacts import code_version, sha256_file, valid_manifest
     from tasks.generalist_jobs import GENERALIST_LIFT_CODE, GeneralistJob, job_spec
     from tasks.preflight import cache_dir
     from tasks.specialists import select_records, spread_records
@@ -64,12 +69,17 @@ def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, rec
         records = select_records(outputs["synthesize"], stage, [split])
     records = [r for r in records if len(r.scene.objects) == EVALUATED_OBJECTS]
     records = spread_records(records, stage.eval_poses)
-    urdf = HandModel(cfg.hand).export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
+    hand = HandModel(cfg.hand)
+    urdf = hand.export_urdf(cache_dir(cfg.run.workdir) / "hand" / URDF_FILE_NAME)
     student = outputs["distill"].path("student")
-    setting = section_digest(cfg, "lift", "hand", "objects", "distill.vision",
-                             extra={"trials": stage.eval_trials, "seed": stage.eval_seed})
+    extra = {"trials": stage.eval_trials, "seed": stage.eval_seed}
+    if stage.eval_after_reach:  # (only then, so that the keys of jobs lifted from the pre-grasps stay as they were)
+        extra["reach"] = cfg.reach.reaching.model_dump(mode="json")
+    setting = section_digest(cfg, "lift", "hand", "objects", "distill.vision", extra=extra)
     code, student_digest = code_version(*GENERALIST_LIFT_CODE), sha256_file(Path(student))
-    keys = [pose_key(r, i) for i, r in enumerate(records)]
+    keys = [pose_key(r, i) for i, r in enumerate(records)]  # of the pre-grasps, before any reach
+    library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir)) if stage.eval_after_reach else None
+    reach_memo = {} if reach_memo is None else reach_memo
     jobs = []
     for a, b in pose_chunks(len(records), stage.eval_chunk_poses):
         if a == b:
@@ -77,8 +87,12 @@ def plan_jobs(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path, rec
         chunk = records[a:b]
         spec = job_spec(workdir=cfg.run.workdir, first=a, setting_digest=setting, student_digest=student_digest,
                         encoder_key=outputs["pointnet"].key, records=[record_to_dict(r) for r in chunk],
-                        keys=keys[a:b], code=code, split=name or split)
-        factory = lift_env_factory(cfg, outputs, urdf, chunk, scratch / f"{name or split}.{a}-{b}.json")
+                        keys=keys[a:b], code=code, split=name or split) if cached else None
+        factory = None
+        if spec is None or valid_manifest(spec.folder) is None:  # a finished job is served without its env
+            if stage.eval_after_reach:  # as evaluate execution: lift from where the planned reach left them
+                chunk = reached_once(chunk, cfg, hand, library, urdf, reach_memo)
+            factory = lift_env_factory(cfg, outputs, urdf, chunk, scratch / f"{name or split}.{a}-{b}.json")
         jobs.append(GeneralistJob(factory=factory, student=str(student),
                                   vision=cfg.distill.vision.model_dump(mode="json"), keys=keys[a:b],
                                   trials=stage.eval_trials, seed=stage.eval_seed, spec=spec))
@@ -139,6 +153,7 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
     results = cfg.run.workdir / "results"
     json_path = atomic_write_json(results / RESULTS_FILE, {
         "rows": rows, "profile": cfg.profile, "records_source": stage.records_source,
+        "after_reach": stage.eval_after_reach,
         "distill_manifest": str(Path(outputs["distill"].folder) / "manifest.json"),
         "config_key": evaluation_key(cfg, RESULTS_FILE)})
     markdown = generalist_markdown(rows, stage.records_source)

@@ -15,8 +15,10 @@ training or not; without a trained generator the error names the command that tr
 With ``--lift`` (two objects) the grasps the protocol filter keeps are then lifted in PyBullet as ``evaluate
 execution`` lifts the Gen rows' (:func:`lift_generated`): the matching specialist (by the bin of the pair and its
 centre line; a pair no specialist was trained on falls back to the nearest sector, then to any pair), seeded
-perturbed trials after the planned reach, and ``w/o RL`` and the scripted squeeze on the same trials.  Results:
-``lift.json`` (success rates, specialists used, GIFs) and ``lift/outcomes.json`` (per pose) in the same folder.
+perturbed trials (after the planned reach with ``specialists.eval_after_reach``), and ``w/o RL`` and the scripted
+squeeze on the same trials; where the ``distill`` stage has run for the config, the vision-based generalist on the
+same trials too, as ``evaluate generalist`` lifts (it needs no matching specialist).  Results: ``lift.json`` (success
+rates, specialists used, GIFs) and ``lift/outcomes.json`` (per pose) in the same folder.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ class LiftReport:
     squeeze: float | None
     specialists: tuple[str, ...]
     gifs: tuple[Path, ...]
+    generalist: float | None = None
+    """The distilled generalist's success on the same trials (``None`` without a ``distill`` stage for the config)."""
 
 
 @dataclass
@@ -173,7 +177,8 @@ def _log_generate(cfg: PipelineConfig, report: GenerateReport, scene, seed: int,
                "depth_after_mm": report.depth_after_mm, **report.seconds}
     if report.lift is not None:
         metrics.update({f"lift/{k}": v for k, v in (("succ", report.lift.succ), ("w/o RL", report.lift.without_rl),
-                                                    ("squeeze", report.lift.squeeze), ("poses", report.lift.poses))
+                                                    ("squeeze", report.lift.squeeze), ("poses", report.lift.poses),
+                                                    ("generalist", report.lift.generalist))
                         if v is not None})
     tracker.log_metrics(run_id, metrics)
     for name in ("grasps.json", "scene.json", "grasps.png", "lift.json"):
@@ -193,7 +198,10 @@ def _lift_outputs(cfg: PipelineConfig, scene) -> dict:
         raise MultigraspError(f"--lift lifts {EVALUATED_OBJECTS}-object pre-grasps (the specialists are trained on "
                               f"pairs) and the scene has {len(scene.objects)} ({'+'.join(scene.names)}) — give two "
                               "--objects, or drop --lift")
-    return _stage_outputs(cfg, "generate --lift")
+    from flows.pipeline import stage_output
+
+    # the generalist lifts them too where the distill stage has run for this config (its absence is no error)
+    return {**_stage_outputs(cfg, "generate --lift"), "distill": stage_output(cfg, "distill")}
 
 
 def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows: list[dict], seed: int,
@@ -213,10 +221,20 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
                                  "combination": combination, "accepted": True})
                for i, r in enumerate(rows) if r["kept"]]
     scratch = folder / "lift"
+    generalist: list[int] = []  # the generalist's successes per pose
     if records:
+        reach_memo: dict = {}  # with eval_after_reach: each pose reached once for the specialists and the generalist
         with lift_pool(cfg.run) as pool:
             res = evaluate_split(cfg, outputs, "generated", scratch, scripted=True, records=records, say=say,
-                                 title=f"lift {combination}", pool=pool, cached=False)  # a one-off, in its own folder
+                                 title=f"lift {combination}", pool=pool, cached=False,  # a one-off, in its own folder
+                                 reach_memo=reach_memo)
+            if outputs.get("distill") is not None:
+                from flows.evaluate_generalist import plan_jobs, run_jobs
+
+                jobs = plan_jobs(cfg, outputs, "generated", scratch, records, "generalist", cached=False,
+                                 reach_memo=reach_memo)
+                generalist = [s for per_job in run_jobs(jobs, pool, say or (lambda line: None), f"lift {combination}")
+                              for s in per_job]
         write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)
     else:
         from flows.evaluate_execution import SplitResult
@@ -224,10 +242,14 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
         res = SplitResult()
     report = LiftReport(path=folder / "lift.json", kept=len(records), poses=res.poses, trials=stage.eval_trials,
                         succ=res.rate(res.wins, res.total), without_rl=res.rate(res.scripted_wins, res.scripted_total),
-                        squeeze=res.rate(res.squeeze_wins, res.squeeze_total), specialists=res.used, gifs=res.gifs)
+                        squeeze=res.rate(res.squeeze_wins, res.squeeze_total), specialists=res.used, gifs=res.gifs,
+                        generalist=(sum(generalist) / (len(generalist) * stage.eval_trials) if generalist else None))
     atomic_write_json(report.path, {
         "kept": report.kept, "generated": len(rows), "n_poses": report.poses, "trials": report.trials,
         "succ": report.succ, "w/o RL": report.without_rl, "squeeze": report.squeeze,
+        "generalist": report.generalist, "generalist_poses": len(generalist),
+        "distill_manifest": (str(Path(outputs["distill"].folder) / "manifest.json")
+                             if outputs.get("distill") is not None else None),
         "specialists_used": list(res.used), "matched_by": res.matched_by, "unmatched_poses": res.unmatched,
         "after_reach": stage.eval_after_reach, "gifs": [str(p) for p in res.gifs],
         "specialists_manifest": str(Path(outputs["specialists"].folder) / "manifest.json"),

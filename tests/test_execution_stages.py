@@ -538,6 +538,25 @@ def test_the_curriculum_adapts_each_specialist_then_dagger_distils_them_and_the_
     assert main(evaluate) == 0
     assert executions(workdir) == jobs  # every lift job served from its unit
     assert "evaluate generalist Syn-Pl" in capsys.readouterr().err
+    # lifted after the planned reach, as the specialists are with the same setting: other jobs, reached poses
+    assert main([*evaluate, "--set", "specialists.eval_after_reach=true"]) == 0
+    data = json.loads((workdir / "results" / "execution_generalist.json").read_text())
+    assert data["after_reach"] is True and executions(workdir) != jobs
+    lifted = [r for f in (workdir / "results" / "generalist").glob("Syn-*.json") for r in load_records(f)]
+    assert lifted and all("object_displacement_m" in r.meta for r in lifted)
+
+
+@pytest.mark.parametrize("filtered", [False, True])
+def test_the_protocol_filter_keys_the_curriculum_only_where_it_filters_the_generated_starts(filtered):
+    """Unfiltered (the default), the filter decides nothing in the curriculum, so ``generate --lift --set
+    generator.eval_filter.enabled=false`` finds the adapted specialists and the generalist of the same config."""
+    from flows.config import load_config, with_overrides
+    from flows.curriculum import config_digest
+
+    cfg = with_overrides(load_config("smoke"), {"curriculum.filter_generated": filtered})
+    for override in ({"generator.eval_filter.enabled": False}, {"generator.eval_filter.max_penetration_m": 0.009}):
+        assert (config_digest(with_overrides(cfg, override)) != config_digest(cfg)) is filtered
+    assert config_digest(with_overrides(cfg, {"generator.refine.steps": 7})) != config_digest(cfg)
 
 
 def test_evaluate_generalist_without_the_distill_stage_names_the_command(tmp_path, capsys):

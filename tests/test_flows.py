@@ -218,16 +218,19 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
     lift = json.loads((folder / "lift.json").read_text())
     assert lift["generated"] == lift["kept"] == 3  # the filter open: every grasp kept, eval_poses of them lifted
     assert lift["n_poses"] == 2 and lift["unmatched_poses"] == 0 and lift["trials"] == 1  # a pair specialist matches
-    assert lift["specialists_used"] and all(0.0 <= lift[k] <= 1.0 for k in ("succ", "w/o RL", "squeeze"))
+    assert lift["specialists_used"] and all(0.0 <= lift[k] <= 1.0 for k in ("succ", "w/o RL", "squeeze", "generalist"))
+    # the smoke pipeline distilled a generalist: it lifts the same poses (it needs no matching specialist)
+    assert lift["generalist_poses"] == 2 and lift["distill_manifest"].endswith("manifest.json")
     assert len(json.loads((folder / "lift" / "outcomes.json").read_text())["poses"]) == 2
     assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
     assert "the protocol filter off: every grasp kept" in out and "lift: 2 pose(s) x 1 trial(s)" in out
+    assert ", generalist " in out
     from mlflow.tracking import MlflowClient  # the grasps, their render, the lift and its GIFs: one MLflow run
 
     client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
     run, = [r for r in client.search_runs(client.get_experiment_by_name("multigrasp").experiment_id)
             if r.info.run_name == "generate:cube+mug"]
-    assert run.data.metrics["kept"] == 3 and run.data.metrics["lift/poses"] == 2
+    assert run.data.metrics["kept"] == 3 and run.data.metrics["lift/poses"] == 2 and "lift/generalist" in run.data.metrics
     assert {a.path for a in client.list_artifacts(run.info.run_id, "generated")} >= {
         "generated/grasps.png", "generated/grasps.json", "generated/lift.json"}
     assert client.list_artifacts(run.info.run_id, "rollouts")

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The fifty-ninth session's generalist measurement (docs/experiments.md "The curriculum and the generalist with a
+# generator that touches"): every stage of the mini profile with config.yaml, then Table I's specialist and generalist
+# columns on Syn-Pl and Gen-Pl, and Table II(c) on Gen-Pl.
+# Usage: benchmarks/results/fiftyninth/generalist/run.sh WORKDIR   (from the repository root; ~2 h on 2 cores)
+set -euo pipefail
+W=${1:?work dir}
+HERE=benchmarks/results/fiftyninth/generalist
+ARGS=(--profile mini --config "$HERE/config.yaml" --workdir "$W")
+multigrasp run "${ARGS[@]}"
+multigrasp evaluate pregrasp --source generated "${ARGS[@]}"
+multigrasp evaluate execution "${ARGS[@]}"
+multigrasp evaluate execution --source generated "${ARGS[@]}"
+multigrasp evaluate generalist "${ARGS[@]}"
+multigrasp evaluate curriculum "${ARGS[@]}"
+for f in pregrasp_generated execution execution_generated execution_generalist ablation_curriculum; do
+  cp "$W/results/$f.json" "$HERE/"
+done
