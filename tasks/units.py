@@ -141,7 +141,10 @@ def run_unit(spec: UnitSpec, body: Callable[[Path], UnitOutput]) -> Manifest:
         if moved(spec):  # record the folder the files are in now (read_manifest already serves them from here)
             atomic_write_text(spec.folder / MANIFEST_NAME, existing.model_dump_json(indent=2) + "\n")
         return existing
+    waited: list[str] = []
+
     def waiting(holder: str) -> None:
+        waited.append(holder)
         log.warning("%s: another invocation on this work dir is computing it (%s); waiting for it", spec.label, holder)
 
     with file_lock(lock_path(Path(spec.workdir), spec.key), on_wait=waiting):
@@ -149,6 +152,8 @@ def run_unit(spec: UnitSpec, body: Callable[[Path], UnitOutput]) -> Manifest:
         if finished is not None:
             log.warning("%s: finished by the other invocation; using its outputs", spec.label)
             return finished
+        if waited:  # say so, or the waiting line above would be the last word on this unit until it finishes
+            log.warning("%s: the other invocation ended without finishing it; computing it here", spec.label)
         spec.folder.mkdir(parents=True, exist_ok=True)
         record_execution(spec)
         start = time.perf_counter()

@@ -162,6 +162,27 @@ def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path)
     assert calls == []
 
 
+def test_a_unit_whose_other_invocation_ended_unfinished_says_it_computes_it_here(tmp_path, caplog):
+    """Waiting for another invocation's unit, then finding it unfinished (that invocation was killed): one line says
+    the unit is computed here, so the waiting line is not the last word on it."""
+    import logging
+
+    from tasks.artifacts import lock_path
+    from tasks.units import UnitOutput, make_spec, run_unit
+
+    spec = make_spec(stage="demo", unit="u", section_digest="s", upstream={}, code="c", workdir=tmp_path)
+    holder = _hold_lock_in_another_process(lock_path(tmp_path, spec.key), tmp_path / "ready", 1.0)
+    try:
+        with caplog.at_level(logging.WARNING, logger="multigrasp"):
+            out = run_unit(spec, lambda folder: UnitOutput(files={}, metrics={"x": 1}))
+    finally:
+        holder.wait(timeout=30)
+    assert out.metrics == {"x": 1}
+    lines = [r.getMessage() for r in caplog.records]
+    assert any("waiting for it" in line for line in lines)
+    assert lines[-1].endswith("the other invocation ended without finishing it; computing it here")
+
+
 def test_lock_holder_names_the_holder_without_taking_the_lock(tmp_path, monkeypatch):
     """``status`` asks who holds each unit's lock; on Linux it reads /proc/locks, so a unit starting at that
     instant never finds the lock taken by ``status`` (and logs no spurious waiting line)."""
