@@ -11,8 +11,9 @@ poses are lifted in cached jobs (:mod:`tasks.generalist_jobs`), in the evaluatio
 as ``evaluate execution``), so a killed evaluation relifts only the jobs that had not finished.
 
 Writes ``<workdir>/results/execution_generalist.json`` ``{"rows": [{"setting", "succ", "n_poses", "trials",
-"paper"}], ...}`` and ``execution_generalist.md``, logged to their own MLflow run; ``multigrasp report`` shows the
-rates after the specialists' in Table I's success column.
+"paper"}], ...}``, ``execution_generalist.md`` and per setting ``results/generalist/<setting>/outcomes.json`` (per
+pose, for ``python -m benchmarks.paired_execution`` against the specialists'), logged to their own MLflow run;
+``multigrasp report`` shows the rates after the specialists' in Table I's success column.
 """
 
 from __future__ import annotations
@@ -146,7 +147,12 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
             jobs = plan_jobs(cfg, outputs, split, scratch, records, setting)
             say(f"[bold cyan]evaluate generalist[/] {setting}: {sum(len(j.keys) for j in jobs)} pose(s) x "
                 f"{stage.eval_trials} trial(s), {len(jobs)} job(s)")
-            successes = [s for per_job in run_jobs(jobs, pool, say, setting) for s in per_job]
+            per_job = run_jobs(jobs, pool, say, setting)
+            successes = [s for job_successes in per_job for s in job_successes]
+            write_outcomes(scratch / setting / "outcomes.json", [
+                {"specialist": "generalist", "pose_key": key, "policy": s}
+                for job, job_successes in zip(jobs, per_job) for key, s in zip(job.keys, job_successes)],
+                stage.eval_trials)
             trials = len(successes) * stage.eval_trials
             rows.append({"setting": setting, "succ": round(sum(successes) / trials, 4) if trials else None,
                          "n_poses": len(successes), "trials": stage.eval_trials, "paper": generalist_paper(setting)})
@@ -166,6 +172,15 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
         tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)
     return GeneralistReport(rows=rows, json_path=json_path, markdown=markdown)
+
+
+def write_outcomes(path: Path, poses: list[dict], trials: int) -> Path:
+    """``outcomes.json`` of one setting in the layout of ``evaluate execution``'s
+    (:func:`flows.evaluate_execution.write_outcomes`): per pose its seed key and the generalist's successes (of
+    ``trials``) under ``policy``.  The poses and trials are the specialists', so ``python -m
+    benchmarks.paired_execution results/execution/Syn-Pl/outcomes.json results/generalist/Syn-Pl/outcomes.json``
+    compares the generalist with its specialists pose by pose."""
+    return atomic_write_json(path, {"trials": trials, "poses": poses})
 
 
 def _generated_records(cfg: PipelineConfig, say, settings=GENERATED_EXECUTION_SETTINGS) -> dict[str, list]:

@@ -534,6 +534,13 @@ def test_the_curriculum_adapts_each_specialist_then_dagger_distils_them_and_the_
     # the fixture's Syn-Pl scenes are singles (the table lifts pairs): its Syn-Com pair is lifted
     assert sum(r["n_poses"] for r in data["rows"][:3]) >= 1 and all(r["n_poses"] <= 2 for r in data["rows"])
     assert data["distill_manifest"].endswith("manifest.json")
+    # per pose, in evaluate execution's layout: the paired comparison with the specialists reads it
+    from benchmarks.paired_execution import load_outcomes
+
+    for row in data["rows"]:
+        trials, poses = load_outcomes(workdir / "results" / "generalist" / row["setting"] / "outcomes.json")
+        assert trials == 1 and len(poses) == row["n_poses"]
+        assert all(p["specialist"] == "generalist" and p["policy"] in (0, 1) for p in poses.values())
     jobs = executions(workdir)
     assert main(evaluate) == 0
     assert executions(workdir) == jobs  # every lift job served from its unit
