@@ -23,8 +23,8 @@ from pathlib import Path
 
 from components.errors import MultigraspError
 from flows.config import PipelineConfig, evaluation_key, section_digest
-from flows.evaluate_execution import (EVALUATED_OBJECTS, EXECUTION_SETTINGS, lift_env_factory, lift_pool, pose_chunks,
-                                      pose_key, reached_once)
+from flows.evaluate_execution import (EVALUATED_OBJECTS, EXECUTION_SETTINGS, SplitResult, lift_env_factory, lift_pool,
+                                      pose_chunks, pose_key, reached_once, write_outcomes)
 from flows.evaluate_generated_execution import GENERATED_EXECUTION_SETTINGS
 from flows.paper import generalist_paper
 from tasks.artifacts import atomic_write_json, atomic_write_text
@@ -149,9 +149,10 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
                 f"{stage.eval_trials} trial(s), {len(jobs)} job(s)")
             per_job = run_jobs(jobs, pool, say, setting)
             successes = [s for job_successes in per_job for s in job_successes]
-            write_outcomes(scratch / setting / "outcomes.json", [
+            # per pose, in the specialists' layout (benchmarks.paired_execution compares the two pose by pose)
+            write_outcomes(scratch / setting / "outcomes.json", SplitResult(outcomes=[
                 {"specialist": "generalist", "pose_key": key, "policy": s}
-                for job, job_successes in zip(jobs, per_job) for key, s in zip(job.keys, job_successes)],
+                for job, job_successes in zip(jobs, per_job) for key, s in zip(job.keys, job_successes)]),
                 stage.eval_trials)
             trials = len(successes) * stage.eval_trials
             rows.append({"setting": setting, "succ": round(sum(successes) / trials, 4) if trials else None,
@@ -172,15 +173,6 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
         tracker.log_artifact(run_id, path, "results")
     tracker.end_run(run_id)
     return GeneralistReport(rows=rows, json_path=json_path, markdown=markdown)
-
-
-def write_outcomes(path: Path, poses: list[dict], trials: int) -> Path:
-    """``outcomes.json`` of one setting in the layout of ``evaluate execution``'s
-    (:func:`flows.evaluate_execution.write_outcomes`): per pose its seed key and the generalist's successes (of
-    ``trials``) under ``policy``.  The poses and trials are the specialists', so ``python -m
-    benchmarks.paired_execution results/execution/Syn-Pl/outcomes.json results/generalist/Syn-Pl/outcomes.json``
-    compares the generalist with its specialists pose by pose."""
-    return atomic_write_json(path, {"trials": trials, "poses": poses})
 
 
 def _generated_records(cfg: PipelineConfig, say, settings=GENERATED_EXECUTION_SETTINGS) -> dict[str, list]:

@@ -233,8 +233,11 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
 
                 jobs = plan_jobs(cfg, outputs, "generated", scratch, records, "generalist", cached=False,
                                  reach_memo=reach_memo)
-                generalist = [s for per_job in run_jobs(jobs, pool, say or (lambda line: None), f"lift {combination}")
-                              for s in per_job]
+                per_job = run_jobs(jobs, pool, say or (lambda line: None), f"lift {combination}")
+                by_key = {key: s for job, successes in zip(jobs, per_job) for key, s in zip(job.keys, successes)}
+                generalist = list(by_key.values())
+                for row in res.outcomes:  # outcomes.json: the generalist's column beside the specialist's, per pose
+                    row["generalist"] = by_key.get(row["pose_key"])
         write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)
     else:
         from flows.evaluate_execution import SplitResult

@@ -222,6 +222,7 @@ def test_generate_lift_lifts_the_kept_grasps_of_a_pair_with_the_matching_special
     # the smoke pipeline distilled a generalist: it lifts the same poses (it needs no matching specialist)
     assert lift["generalist_poses"] == 2 and lift["distill_manifest"].endswith("manifest.json")
     assert len(json.loads((folder / "lift" / "outcomes.json").read_text())["poses"]) == 2
+    assert all(p["generalist"] in (0, 1) for p in json.loads((folder / "lift" / "outcomes.json").read_text())["poses"])
     assert lift["gifs"] and all(Path(p).is_file() for p in lift["gifs"])
     assert "the protocol filter off: every grasp kept" in out and "lift: 2 pose(s) x 1 trial(s)" in out
     assert ", generalist " in out
