@@ -194,6 +194,7 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         reach_memo = {} if reach_memo is None else reach_memo
         library = ObjectLibrary(cfg.objects, cache_dir=cache_dir(cfg.run.workdir))
     settings = {g: lift_setting(cfg, scripted, g) for g in (False, True)} if cached else {False: "", True: ""}
+    wider = {g: wider_settings(cfg, scripted, g) for g in (False, True)} if cached else {False: [], True: []}
     code = code_version(*LIFT_CODE) if cached else ""
     policy_digests = {label: sha256_file(Path(index[label]["policy"])) for label in groups} if cached else {}
     meta = {"config_key": evaluation_key(cfg, results_file)} if cached else {}
@@ -205,14 +206,21 @@ def evaluate_split(cfg: PipelineConfig, outputs: dict, split: str, scratch: Path
         combinations = [record.meta.get("combination") or "+".join(record.scene.names) for record in group]
         for a, b in pose_chunks(len(group), stage.eval_chunk_poses):
             gif_job = gifs and a == 0 and stage.gifs_per_outcome > 0  # GIFs of the first job of each specialist
-            spec = lift_unit_spec(workdir=cfg.run.workdir, label=label, first=a, setting=settings[gif_job],
-                                  policy_digest=policy_digests[label], encoder_key=outputs["pointnet"].key,
-                                  records=[record_to_dict(r) for r in group[a:b]], keys=keys[a:b],
-                                  code=code) if cached else None
+            unit = dict(workdir=cfg.run.workdir, label=label, first=a, policy_digest=policy_digests.get(label, ""),
+                        encoder_key=outputs["pointnet"].key, records=[record_to_dict(r) for r in group[a:b]],
+                        keys=keys[a:b], code=code)
+            spec = lift_unit_spec(setting=settings[gif_job], **unit) if cached else None
             job = LiftJob(label=label, factory=None, policy=str(entry["policy"]), keys=keys[a:b], stage=stage,
                           joint_names=list(hand.actuated_joint_names) if scripted else None, scripted=scripted,
                           gif_folder=str(scratch / name) if gif_job else None, spec=spec, meta=meta)
             result = finished_result(spec) if spec is not None else None
+            for setting in wider[gif_job] if result is None else ():  # a finished job that lifted more serves it too
+                found = finished_result(lift_unit_spec(setting=setting, **unit))
+                if found is not None:
+                    result = LiftJobResult(policy=found.policy, wo_rl=found.wo_rl if scripted else None,
+                                           squeeze=found.squeeze if scripted else None,
+                                           gifs=found.gifs if gif_job else [])
+                    break
             if result is not None:
                 done[len(jobs)] = result
             else:
@@ -253,6 +261,16 @@ def lift_setting(cfg: PipelineConfig, scripted: bool, gifs: bool) -> str:
     extra = {"fields": fields, "scripted": scripted, "gifs": gifs,
              "reach": cfg.reach.reaching.model_dump(mode="json") if stage.eval_after_reach else None}
     return section_digest(cfg, "lift", "hand", "objects", extra=extra)
+
+
+def wider_settings(cfg: PipelineConfig, scripted: bool, gifs: bool) -> list[str]:
+    """The settings (:func:`lift_setting`) of jobs that lift everything a job of ``(scripted, gifs)`` lifts and
+    more, on the same poses and seeded trials: with the scripted baselines as well, or with GIFs as well.  The policy
+    is lifted first in each (:func:`tasks.lift_jobs.lift_job`, from its own env), so its outcomes are the same, and a
+    finished one serves the narrower job: ``evaluate curriculum``'s ``w/o Adpt`` row, say, is served by ``evaluate
+    execution --source generated``'s jobs.  Nearest first: the GIF variant before the scripted ones."""
+    pairs = [(s, g) for s in (scripted, True) for g in (gifs, True)]
+    return [lift_setting(cfg, s, g) for s, g in dict.fromkeys(pairs) if (s, g) != (scripted, gifs)]
 
 
 def lift_env_factory(cfg: PipelineConfig, outputs: dict, urdf: Path, records: list, records_file: Path):

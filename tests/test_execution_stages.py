@@ -307,6 +307,40 @@ def test_a_moved_work_dir_keeps_its_specialists_and_evaluates_them_from_where_it
         parked.rename(workdir)
 
 
+def test_a_finished_job_that_lifted_more_serves_a_narrower_one(runs, tmp_path, monkeypatch):
+    """The policy is lifted first in every job, so a finished job with GIFs or the scripted baselines serves the
+    same poses' policy-only job (``evaluate curriculum``'s ``w/o Adpt`` row after ``evaluate execution --source
+    generated``) instead of lifting them again."""
+    import flows.evaluate_execution as ev
+    from flows.config import load_config
+    from flows.evaluate_execution import _stage_outputs, evaluate_split, lift_setting, wider_settings
+
+    workdir, _, _ = runs
+    # at this size the specialists are single-object ones: lift the Geo split's single, with the first specialist
+    monkeypatch.setattr(ev, "EVALUATED_OBJECTS", 1)
+    monkeypatch.setattr(ev, "matching_specialist", lambda label, index: next(iter(index)))
+    config = next((workdir.parent).glob("exec-config*/stage.yaml"))
+    sets = [*ACCEPT_ALL, *TINY, "specialists.eval_poses=1", "specialists.eval_trials=1", "specialists.eval_seed=7"]
+    cfg = load_config("smoke", config_file=config, sets=sets, workdir=workdir)
+    assert wider_settings(cfg, False, False) == [lift_setting(cfg, *w) for w in ((False, True), (True, False),
+                                                                                  (True, True))]
+    assert wider_settings(cfg, True, False) == [lift_setting(cfg, True, True)] and not wider_settings(cfg, True, True)
+    outputs = _stage_outputs(cfg)
+    wide = evaluate_split(cfg, outputs, "Geo", tmp_path / "wide", scripted=True, gifs=False)
+    assert wide.poses == 1 and wide.scripted_total == 1
+    before = executions(workdir)
+    narrow = evaluate_split(cfg, outputs, "Geo", tmp_path / "narrow", scripted=False, gifs=False)
+    assert executions(workdir) == before  # served by the scripted job's unit, not lifted again
+    assert narrow.outcomes == [{k: v for k, v in row.items() if k not in ("w/o RL", "squeeze")} for row in wide.outcomes]
+    assert narrow.scripted_total == 0  # no baseline counts where none were asked for
+    # the other way round there is nothing to serve: the scripted baselines are lifted
+    other = load_config("smoke", config_file=config, sets=[*sets[:-1], "specialists.eval_seed=8"], workdir=workdir)
+    evaluate_split(other, outputs, "Geo", tmp_path / "first", scripted=False, gifs=False)
+    before = executions(workdir)
+    evaluate_split(other, outputs, "Geo", tmp_path / "second", scripted=True, gifs=False)
+    assert len(executions(workdir)) == len(before) + 1
+
+
 def test_the_wo_rl_row_lifts_from_the_pre_grasp_without_the_grasp_closure():
     from components.execution.factory import LiftEnvFactory
     from tasks.lift_jobs import without_closure
