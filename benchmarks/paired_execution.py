@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
 from components.errors import MultigraspError
+from flows.paired import paired
 
 
 def load_outcomes(path: Path) -> tuple[int, dict[int, dict]]:
@@ -32,24 +32,6 @@ def load_outcomes(path: Path) -> tuple[int, dict[int, dict]]:
                               "<workdir>/results/execution/<setting>/outcomes.json") from None
     except (ValueError, KeyError, TypeError) as exc:
         raise MultigraspError(f"{path}: not an evaluate-execution outcomes.json ({exc}); rerun the evaluation") from None
-
-
-def paired(a: dict[int, dict], b: dict[int, dict], column_a: str, column_b: str, trials: int) -> dict:
-    """Success of each side on the poses both evaluated, and their paired difference (b - a) with its standard
-    error over poses."""
-    keys = sorted(k for k in set(a) & set(b) if column_a in a[k] and column_b in b[k])
-    if len(keys) < 2:
-        raise MultigraspError(f"only {len(keys)} poses carry {column_a!r} in A and {column_b!r} in B; compare "
-                              "evaluations of the same split with the same specialists.eval_* settings")
-    ra = [a[k][column_a] / trials for k in keys]
-    rb = [b[k][column_b] / trials for k in keys]
-    d = [y - x for x, y in zip(ra, rb)]
-    mean = sum(d) / len(d)
-    se = math.sqrt(sum((v - mean) ** 2 for v in d) / (len(d) - 1) / len(d))
-    return {"poses": len(keys), "trials": trials, "a": round(sum(ra) / len(ra), 4), "b": round(sum(rb) / len(rb), 4),
-            "difference": round(mean, 4), "standard_error": round(se, 4),
-            "poses_higher": sum(v > 0 for v in d), "poses_level": sum(v == 0 for v in d),
-            "poses_lower": sum(v < 0 for v in d)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,6 +18,7 @@ from typing import Any
 
 from components.errors import MultigraspError
 from flows.evaluate import _fmt as _num
+from flows.paired import paired_cell
 from flows.paper import (PAPER_CURRICULUM_ABLATIONS, PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST,
                          PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
 from tasks.artifacts import atomic_write_text
@@ -153,9 +154,11 @@ def table_two(generator: dict[str, dict], execution: dict[str, dict], syn_pl: di
 def table_curriculum(rows: dict[str, dict]) -> list[str]:
     """Table II(c)'s adaptation rows: the curriculum's specialists against w/o Adpt and w/o Curr on Gen-Pl."""
     lines = ["**(c) Adaptation** (Gen-Pl, `multigrasp evaluate curriculum`; the paper's Ours* is on a subset of "
-             "objects)", "", "| setting | succ ↑ |", "|---|---|"]
+             "objects; vs Ours: the row minus Ours pose by pose, ± its standard error over poses)", "",
+             "| setting | succ ↑ | vs Ours, paired (points) |", "|---|---|---|"]
     for setting, paper in PAPER_CURRICULUM_ABLATIONS.items():
-        lines.append(f"| {setting} | {_cell(_pct(rows.get(setting, {}).get('succ')), _pct(paper))} |")
+        row = rows.get(setting, {})
+        lines.append(f"| {setting} | {_cell(_pct(row.get('succ')), _pct(paper))} | {paired_cell(row.get('vs_ours'))} |")
     return lines
 
 

@@ -578,6 +578,12 @@ def test_evaluate_curriculum_lifts_the_same_poses_with_the_adapted_the_plain_and
     assert [r["setting"] for r in rows] == [OURS, "w/o Adpt", "w/o Curr"]
     assert [r["paper"] for r in rows] == [0.4525, 0.2505, 0.2488]
     assert rows[0]["n_poses"] == rows[1]["n_poses"] == rows[2]["n_poses"] == 2
+    # each ablation row against Ours, paired by pose: the difference of the rates, with a standard error
+    assert rows[0]["vs_ours"] is None
+    for row in rows[1:]:
+        assert row["vs_ours"]["poses"] == 2 and row["vs_ours"]["a"] == rows[0]["succ"] and row["vs_ours"]["b"] == row["succ"]
+        assert row["vs_ours"]["difference"] == round(row["succ"] - rows[0]["succ"], 4) and row["vs_ours"]["standard_error"] >= 0
+    assert "vs Ours, paired" in (workdir / "results" / "ablation_curriculum.md").read_text()
     stages = [Path(r["specialists_manifest"]).parent for r in rows]
     assert [s.parent.name for s in stages] == ["curriculum", "specialists", "curriculum"] and stages[0] != stages[2]
     # w/o Curr: every phase starts from all of the bin's starts alike
@@ -586,4 +592,4 @@ def test_evaluate_curriculum_lifts_the_same_poses_with_the_adapted_the_plain_and
     assert all((unit / f"phase{k}.json").read_text() == (unit / "phase1.json").read_text() for k in (2, 3))
     assert main(["report", "--workdir", str(workdir)]) == 0
     report = (workdir / "results" / "report.md").read_text()
-    assert "(c) Adaptation" in report and "| w/o Curr |" in report
+    assert "(c) Adaptation" in report and "| w/o Curr |" in report and "vs Ours, paired" in report

@@ -44,3 +44,17 @@ def test_missing_file_and_mismatched_trials_give_one_line_errors(tmp_path, capsy
     bad.write_text("{}")
     assert main([str(bad), str(a)]) == 2
     assert "not an evaluate-execution outcomes.json" in capsys.readouterr().err
+
+
+def test_paired_or_none_gives_the_difference_of_two_evaluations_and_its_standard_error():
+    from flows.paired import paired_cell, paired_or_none
+
+    ours = [{"pose_key": k, "policy": s} for k, s in ((1, 2), (2, 0), (3, 1))]
+    other = [{"pose_key": k, "policy": s} for k, s in ((3, 1), (1, 0), (2, 0), (9, 2))]  # pose 9: only here
+    result = paired_or_none(ours, other, trials=2)
+    # per shared pose (b - a): -1, 0, 0 -> mean -1/3, sample sd 0.577, standard error 0.333
+    assert result["poses"] == 3 and result["difference"] == round(-1 / 3, 4)
+    assert result["standard_error"] == round(0.5773503 / 3 ** 0.5, 4)
+    assert (result["poses_higher"], result["poses_level"], result["poses_lower"]) == (0, 2, 1)
+    assert paired_cell(result) == "-33.3 ± 33.3" and paired_cell(None) == "–"
+    assert paired_or_none(ours[:1], other, trials=2) is None  # one shared pose: no standard error
