@@ -234,8 +234,8 @@ def lift_generated(cfg: PipelineConfig, outputs: dict, folder: Path, scene, rows
                 jobs = plan_jobs(cfg, outputs, "generated", scratch, records, "generalist", cached=False,
                                  reach_memo=reach_memo)
                 per_job = run_jobs(jobs, pool, say or (lambda line: None), f"lift {combination}")
+                generalist = [s for successes in per_job for s in successes]  # one per pose, as the specialist's
                 by_key = {key: s for job, successes in zip(jobs, per_job) for key, s in zip(job.keys, successes)}
-                generalist = list(by_key.values())
                 for row in res.outcomes:  # outcomes.json: the generalist's column beside the specialist's, per pose
                     row["generalist"] = by_key.get(row["pose_key"])
         write_outcomes(scratch / "outcomes.json", res, stage.eval_trials)
