@@ -123,9 +123,10 @@ def test_code_version_ignores_comments_docstrings_and_field_descriptions_but_not
     assert code_version("components/thing", root=tmp_path) != before
 
 
-def _hold_lock_in_another_process(path, ready, seconds: float):
-    """A child process holding :func:`tasks.artifacts.file_lock` at ``path`` for ``seconds``, returned once it
-    holds it (it touches ``ready`` then)."""
+def _hold_lock_in_another_process(path, ready, release):
+    """A child process holding :func:`tasks.artifacts.file_lock` at ``path`` until the file ``release`` exists (at
+    most 120 s), returned once it holds it (it touches ``ready`` then). The test decides when the lock is let go, so
+    no assertion depends on how fast a loaded machine schedules either process."""
     import subprocess
     import sys
     import time
@@ -135,7 +136,9 @@ def _hold_lock_in_another_process(path, ready, seconds: float):
         "from tasks.artifacts import file_lock\n"
         f"with file_lock(pathlib.Path({str(path)!r})):\n"
         f"    pathlib.Path({str(ready)!r}).touch()\n"
-        f"    time.sleep({seconds})\n")])
+        "    deadline = time.monotonic() + 120\n"
+        f"    while not pathlib.Path({str(release)!r}).exists() and time.monotonic() < deadline:\n"
+        "        time.sleep(0.02)\n")])
     while not ready.exists():
         assert holder.poll() is None
         time.sleep(0.05)
@@ -143,18 +146,25 @@ def _hold_lock_in_another_process(path, ready, seconds: float):
 
 
 def test_a_file_lock_held_by_another_process_names_it_and_waits_for_it(tmp_path):
+    import threading
     import time
 
     from tasks.artifacts import file_lock
 
-    path = tmp_path / "locks" / "unit.lock"
-    holder = _hold_lock_in_another_process(path, tmp_path / "ready", 1.5)
+    path, release = tmp_path / "locks" / "unit.lock", tmp_path / "release"
+    holder = _hold_lock_in_another_process(path, tmp_path / "ready", release)
     try:
         waited, start = [], time.monotonic()
-        with file_lock(path, on_wait=waited.append):
+
+        def on_wait(line: str) -> None:  # the holder lets go 0.6 s after the wait began
+            waited.append(line)
+            threading.Timer(0.6, release.touch).start()
+
+        with file_lock(path, on_wait=on_wait):
             assert time.monotonic() - start > 0.5  # it blocked until the holder's block ended
         assert len(waited) == 1 and waited[0].startswith(f"pid {holder.pid} (")
     finally:
+        release.touch()
         holder.wait(timeout=30)
     calls = []
     with file_lock(path, on_wait=calls.append):  # free: no wait
@@ -171,11 +181,22 @@ def test_a_unit_whose_other_invocation_ended_unfinished_says_it_computes_it_here
     from tasks.units import UnitOutput, make_spec, run_unit
 
     spec = make_spec(stage="demo", unit="u", section_digest="s", upstream={}, code="c", workdir=tmp_path)
-    holder = _hold_lock_in_another_process(lock_path(tmp_path, spec.key), tmp_path / "ready", 1.0)
+    release = tmp_path / "release"
+
+    class ReleaseWhenWaiting(logging.Handler):  # the holder ends (unfinished) once this invocation waits for it
+        def emit(self, record):
+            if "waiting for it" in record.getMessage():
+                release.touch()
+
+    holder = _hold_lock_in_another_process(lock_path(tmp_path, spec.key), tmp_path / "ready", release)
+    handler = ReleaseWhenWaiting()
+    logging.getLogger("multigrasp").addHandler(handler)
     try:
         with caplog.at_level(logging.WARNING, logger="multigrasp"):
             out = run_unit(spec, lambda folder: UnitOutput(files={}, metrics={"x": 1}))
     finally:
+        logging.getLogger("multigrasp").removeHandler(handler)
+        release.touch()
         holder.wait(timeout=30)
     assert out.metrics == {"x": 1}
     lines = [r.getMessage() for r in caplog.records]
@@ -194,7 +215,7 @@ def test_lock_holder_names_the_holder_without_taking_the_lock(tmp_path, monkeypa
     if not tasks.artifacts.PROC_LOCKS.exists():
         pytest.skip("no /proc/locks: lock_holder tries the lock instead")
     path = tmp_path / "unit.lock"
-    holder = _hold_lock_in_another_process(path, tmp_path / "ready", 30)
+    holder = _hold_lock_in_another_process(path, tmp_path / "ready", tmp_path / "never")
     try:
         real_flock = fcntl.flock
         monkeypatch.setattr(fcntl, "flock", lambda *a: pytest.fail("lock_holder took the lock"))

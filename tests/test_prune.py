@@ -126,7 +126,10 @@ def test_an_invocation_waits_for_a_running_prune(tmp_path):
         assert users is None
         worker = threading.Thread(target=invocation)
         worker.start()
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30  # however slowly the worker thread is scheduled
+        while not events and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.2)  # had it not waited, it would have run by now
         assert events == ["waiting"]
     worker.join(timeout=10)
     assert events == ["waiting", "running"]
