@@ -5,9 +5,11 @@ evaluations, MLflow, the UI), status, CLI errors.  Fresh-work-dir flows (resume,
 from __future__ import annotations
 
 import os
+import re
 import sys
 import types
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
@@ -33,20 +35,72 @@ def run_smoke(workdir, *extra: str) -> int:
     return main(argv)
 
 
+class SmokeRuns(NamedTuple):
+    """The shared smoke work dir, the units its first run computed, those after its second run, and what each run
+    printed on the console (stderr)."""
+
+    workdir: Path
+    first: list[str]
+    after_second: list[str]
+    consoles: list[str]
+
+
+def _run_smoke_printing(workdir: Path) -> tuple[int, str]:
+    """:func:`run_smoke`, returning its exit status and its console output (which is also printed, so a failure
+    shows it)."""
+    import contextlib
+    import io
+
+    buffer = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(buffer):
+            code = run_smoke(workdir)
+    finally:
+        sys.stderr.write(buffer.getvalue())
+    return code, buffer.getvalue()
+
+
 @pytest.fixture(scope="module")
-def smoke_runs(tmp_path_factory):
+def smoke_runs(tmp_path_factory) -> SmokeRuns:
     """The smoke pipeline run twice in one work dir (second run must be all cache)."""
     workdir = tmp_path_factory.mktemp("smoke")
-    assert run_smoke(workdir) == 0
+    code, console = _run_smoke_printing(workdir)
+    assert code == 0
     first = executions(workdir)
-    assert run_smoke(workdir) == 0
-    return workdir, first, executions(workdir)
+    code, again = _run_smoke_printing(workdir)
+    assert code == 0
+    return SmokeRuns(workdir, first, executions(workdir), [console, again])
 
 
 def test_second_smoke_run_serves_every_stage_from_cache(smoke_runs):
-    workdir, first, after_second = smoke_runs
-    assert first, "the first run computed nothing"
-    assert after_second == first, "the second run recomputed units"
+    assert smoke_runs.first, "the first run computed nothing"
+    assert smoke_runs.after_second == smoke_runs.first, "the second run recomputed units"
+
+
+def test_smoke_run_prints_its_wall_time(smoke_runs):
+    assert all(len(re.findall(r"done in [0-9.]+s wall time", console)) == 1 for console in smoke_runs.consoles)
+    assert "every stage served from cache" not in smoke_runs.consoles[0]
+    assert "every stage served from cache" in smoke_runs.consoles[1]
+    assert all("multigrasp ui --workdir" in console for console in smoke_runs.consoles)
+
+
+def test_deleted_artifact_is_recomputed_not_trusted(smoke_runs, tmp_path):
+    import shutil
+
+    from tasks.artifacts import read_manifest
+
+    workdir = tmp_path / "runs"  # a copy: the shared smoke work dir stays whole for the other tests
+    shutil.copytree(smoke_runs.workdir, workdir)
+    cfg = load_config("smoke", workdir=workdir)
+    shard = next(p for p in (workdir / "stages" / "scenes").iterdir() if read_manifest(p).unit == "shard-000")
+    (shard / "scenes.json").unlink()
+    states = {r.name: r.state for r in status(cfg)}
+    assert states["scenes"] == "corrupt" and states["synthesize"] == "blocked" and states["specialists"] == "blocked"
+    before = len(executions(workdir))
+    assert run_smoke(workdir) == 0
+    assert executions(workdir)[before:] == ["scenes/shard-000"]
+    assert (shard / "scenes.json").is_file()
+    assert all(r.state == "done" for r in status(cfg))
 
 
 def _lift_job_keys(workdir: Path) -> list[str]:
@@ -255,7 +309,7 @@ def test_mlflow_store_has_one_parent_with_a_child_per_stage_and_pngs(smoke_runs)
 
     from flows.pipeline import stage_names
 
-    workdir, _, _ = smoke_runs
+    workdir = smoke_runs.workdir
     client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")
     experiment = client.get_experiment_by_name("multigrasp")
     runs = client.search_runs([experiment.experiment_id], max_results=1000)
@@ -442,7 +496,7 @@ def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
     import time
     import urllib.request
 
-    workdir, _, _ = smoke_runs
+    workdir = smoke_runs.workdir
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
@@ -564,7 +618,7 @@ def test_evaluate_curriculum_lifts_the_same_poses_with_the_adapted_the_plain_and
     from tasks.artifacts import read_manifest
     from tasks.specialists import select_records
 
-    workdir, _, _ = smoke_runs
+    workdir = smoke_runs.workdir
 
     def stand_in(cfg, say, settings=()):
         return {"Gen-Pl": select_records(stage_output(cfg, "synthesize"), cfg.specialists, ["Pl"])}

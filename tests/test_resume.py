@@ -1,5 +1,5 @@
-"""End-to-end flow tests on fresh work dirs under the smoke profile: resume after a crash, cache hits after an edit,
-a move or a deleted artifact, two invocations at once, the process runner's Prefect server, and signals.
+"""End-to-end flow tests on fresh work dirs under the smoke profile: resume after a crash, cache hits after an edit
+or a move, two invocations at once, the process runner's Prefect server, and signals.
 
 They were in ``test_flows.py``; the tests that read its shared smoke run stayed there.  Two modules let
 ``make test``'s two workers (pytest-xdist, ``--dist loadfile``) share the end-to-end work evenly.
@@ -8,7 +8,6 @@ They were in ``test_flows.py``; the tests that read its shared smoke run stayed 
 from __future__ import annotations
 
 import os
-import re
 
 import pytest
 
@@ -21,15 +20,6 @@ from tasks.units import executions
 from tests.test_flows import SMALL, run_smoke
 
 pytestmark = pytest.mark.slow
-
-
-def test_smoke_run_prints_its_wall_time(tmp_path, capsys):
-    assert run_smoke(tmp_path, *SMALL) == 0
-    assert run_smoke(tmp_path, *SMALL) == 0
-    err = capsys.readouterr().err
-    assert len(re.findall(r"done in [0-9.]+s wall time", err)) == 2
-    assert "every stage served from cache" in err
-    assert "multigrasp ui --workdir" in err
 
 
 def test_a_user_mesh_edited_in_place_is_computed_again_and_an_untouched_one_is_served(tmp_path):
@@ -94,23 +84,12 @@ def test_resume_after_downstream_failure_reuses_upstream_units(tmp_path, monkeyp
     assert sorted(first) == ["scenes/merge", "scenes/shard-000", "scenes/shard-001"]
 
     monkeypatch.setattr(tasks.scenes, "merge_and_render", real)
-    assert run_smoke(tmp_path, *SMALL) == 0
-    # only the failed unit ran again: the shards were served from the cache (then the downstream stages ran)
-    assert [e for e in executions(tmp_path)[len(first):] if e.startswith("scenes/")] == ["scenes/merge"]
-
-
-def test_deleted_artifact_is_recomputed_not_trusted(tmp_path):
-    assert run_smoke(tmp_path, *SMALL) == 0
-    cfg = load_config("smoke", sets=SMALL, workdir=tmp_path)
-    shard = next(p for p in (tmp_path / "stages" / "scenes").iterdir() if read_manifest(p).unit == "shard-000")
-    (shard / "scenes.json").unlink()
-    states = {r.name: r.state for r in status(cfg)}
-    assert states["scenes"] == "corrupt" and states["synthesize"] == "blocked" and states["specialists"] == "blocked"
-    before = len(executions(tmp_path))
-    assert run_smoke(tmp_path, *SMALL) == 0
-    assert executions(tmp_path)[before:] == ["scenes/shard-000"]
-    assert (shard / "scenes.json").is_file()
-    assert all(r.state == "done" for r in status(cfg))
+    argv = ["run", "--profile", "smoke", "--workdir", str(tmp_path), "--until", "synthesize"]
+    assert main(argv + [a for item in SMALL for a in ("--set", item)]) == 0  # the later stages add nothing here
+    # only the failed unit ran again: the shards were served from the cache (then the next stage ran)
+    again = executions(tmp_path)[len(first):]
+    assert [e for e in again if e.startswith("scenes/")] == ["scenes/merge"]
+    assert any(e.startswith("synthesize/") for e in again)
 
 
 def test_a_moved_work_dir_is_served_from_its_cache_and_records_its_new_place(tmp_path):
