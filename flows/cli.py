@@ -42,6 +42,8 @@ EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 DEFAULT_UI_PORT = 5000
 UI_HOST = "127.0.0.1"
+#: the most MLflow server workers ``multigrasp ui`` starts by default (MLflow's own default)
+UI_MAX_DEFAULT_WORKERS = 4
 
 
 def port_is_free(host: str, port: int) -> bool:
@@ -275,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "127.0.0.1. Stop it with Ctrl-C.")
     ui.add_argument("--workdir", type=Path, default=Path("runs"), help="work directory (default ./runs)")
     ui.add_argument("--port", type=int, default=DEFAULT_UI_PORT, help=f"port (default {DEFAULT_UI_PORT})")
+    ui.add_argument("--workers", type=int, default=None,
+                    help=f"MLflow server worker processes (default: the machine's cores, at most "
+                         f"{UI_MAX_DEFAULT_WORKERS}; each extra one slows the start on few cores)")
 
     bench = sub.add_parser("bench", help="speed benchmarks that write JSON (see benchmarks/)",
                            description="Run a benchmark and write its JSON (medians of several runs).")
@@ -315,10 +320,16 @@ SINGLE_STAGE_COMMANDS = [
 
 
 def _single_stage(command: str, stage: str):
-    """The handler of a single-stage command: the stage and its upstream (:func:`flows.pipeline.with_upstream`)."""
-    from flows.pipeline import with_upstream
+    """The handler of a single-stage command: the stage and its upstream (:func:`flows.pipeline.with_upstream`).
+    The pipeline (torch, Prefect, every stage's code: ~12 s to import on a slow day) is imported when the handler
+    runs, not when it is made: ``main`` makes one for every stage command, whichever command it runs."""
 
-    return lambda args: _cmd_run(args, command=command, only=with_upstream(stage))
+    def handler(args: argparse.Namespace) -> int:
+        from flows.pipeline import with_upstream
+
+        return _cmd_run(args, command=command, only=with_upstream(stage))
+
+    return handler
 
 
 def _cmd_run(args: argparse.Namespace, command: str = "run", only: list[str] | None = None) -> int:
@@ -522,6 +533,17 @@ def _cmd_stages(_: argparse.Namespace) -> int:
 UI_QUIET_WARNING = "ignore:starlette.middleware.wsgi is deprecated"
 
 
+def ui_workers(asked: int | None) -> int:
+    """The MLflow server's worker processes for ``multigrasp ui``: ``asked``, else one per core up to
+    :data:`UI_MAX_DEFAULT_WORKERS`.  Each worker imports MLflow as it starts, so on 2 cores MLflow's 4 took 28 s to
+    answer against 20 s for 2, and served 32 concurrent run searches no faster (docs/benchmarks.md)."""
+    if asked is None:
+        return max(1, min(UI_MAX_DEFAULT_WORKERS, os.cpu_count() or 1))
+    if asked < 1:
+        raise MultigraspError(f"--workers must be at least 1 (got {asked}) — e.g. --workers 2")
+    return asked
+
+
 def _cmd_ui(args: argparse.Namespace) -> int:
     from tasks.tracking import artifact_root, default_tracking_uri, relocate_embedded_store
 
@@ -530,6 +552,7 @@ def _cmd_ui(args: argparse.Namespace) -> int:
         raise MultigraspError(f"no MLflow store in {workdir} — run `multigrasp run` first or pass --workdir")
     if not 0 < args.port < 65536:
         raise MultigraspError(f"--port must be between 1 and 65535 (got {args.port})")
+    workers = ui_workers(args.workers)
     if not port_is_free(UI_HOST, args.port):
         raise MultigraspError(f"port {args.port} on {UI_HOST} is in use (another `multigrasp ui` or MLflow server?) — "
                               f"open that one, stop it, or pass --port {args.port + 1}")
@@ -537,7 +560,8 @@ def _cmd_ui(args: argparse.Namespace) -> int:
     if old:
         print(f"artifact locations of {workdir / 'mlflow.db'} moved from {old} to {artifact_root(workdir)}", flush=True)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", default_tracking_uri(workdir),
-           "--default-artifact-root", artifact_root(workdir), "--host", UI_HOST, "--port", str(args.port)]
+           "--default-artifact-root", artifact_root(workdir), "--host", UI_HOST, "--port", str(args.port),
+           "--workers", str(workers)]
     print(f"MLflow UI on http://{UI_HOST}:{args.port} (Ctrl-C to stop)", flush=True)
     # MLflow's server imports a Starlette module that warns of its own deprecation, once per server process (three
     # copies of two lines on every start): not the user's to act on

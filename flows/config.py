@@ -43,6 +43,7 @@ from tasks.reach import ReachStageConfig
 from tasks.scenes import ScenesStageConfig
 from tasks.specialists import SpecialistsStageConfig
 from tasks.synthesize import SynthesisStageConfig
+from tasks.tracking import DEFAULT_EXPERIMENT
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
@@ -64,7 +65,7 @@ class RunConfig(Section):
 class TrackingConfig(Section):
     """MLflow tracking."""
 
-    experiment: str = Field("multigrasp", min_length=1, description="MLflow experiment name.")
+    experiment: str = Field(DEFAULT_EXPERIMENT, min_length=1, description="MLflow experiment name.")
     renders: bool = Field(True, description="Log PNG/GIF renders as MLflow artifacts.")
     generator_sample_scenes: int = Field(
         2, ge=0, le=16,

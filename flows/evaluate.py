@@ -28,6 +28,7 @@ from flows.config import PipelineConfig, evaluation_key
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 from flows.paper import PAPER_GENERATOR_ABLATIONS, pregrasp_paper
+from flows.paper import number_cell as _fmt
 
 
 @dataclass(frozen=True)
@@ -128,10 +129,6 @@ SOURCES: dict[str, Callable[[PipelineConfig], tuple[list[dict[str, Any]], dict[s
 
 
 # --------------------------------------------------------------------------- the table
-
-
-def _fmt(value: Any, digits: int) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
 
 
 def _paper_cell(setting: str) -> str:

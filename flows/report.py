@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.evaluate import _fmt as _num
 from flows.paired import paired_cell
+from flows.paper import number_cell as _num
 from flows.paper import (PAPER_CURRICULUM_ABLATIONS, PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST,
                          PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
 from tasks.artifacts import atomic_write_text
@@ -330,10 +330,9 @@ def _log_report(workdir: Path, markdown: Path, csv_path: Path, data: dict[str, A
                 experiment: str | None = None) -> str:
     """A run ``report`` in the work dir's MLflow store (or ``MLFLOW_TRACKING_URI``'s) with both files, tagged with the
     profile of each source."""
-    from flows.config import TrackingConfig
-    from tasks.tracking import Tracker, default_tracking_uri
+    from tasks.tracking import DEFAULT_EXPERIMENT, Tracker, default_tracking_uri
 
-    tracker = Tracker(default_tracking_uri(Path(workdir)), experiment or TrackingConfig().experiment, Path(workdir))
+    tracker = Tracker(default_tracking_uri(Path(workdir)), experiment or DEFAULT_EXPERIMENT, Path(workdir))
     tags = {"command": "report", **{f"source.{name}": value.get("profile", "?")
                                     for name, value in data.items() if value is not None}}
     run_id = tracker.start_run("report", parent_run_id, tags=tags)

@@ -21,6 +21,9 @@ from typing import Any
 
 from tasks.artifacts import file_lock, lock_path
 
+#: the MLflow experiment of a config that names none (``tracking.experiment``), and of ``multigrasp report``'s run
+DEFAULT_EXPERIMENT = "multigrasp"
+
 log = logging.getLogger("multigrasp")
 
 MAX_PARAM_CHARS = 6000
@@ -51,16 +54,17 @@ def provenance_tags(repo: Path | None = None) -> dict[str, str]:
     import platform
     from importlib import metadata
 
-    import torch
-
     from tasks.artifacts import REPO_ROOT
 
     repo = REPO_ROOT if repo is None else repo
-    try:
-        version = metadata.version("multigrasp")
-    except metadata.PackageNotFoundError:
-        version = "unknown"
-    tags = {"multigrasp.version": version, "multigrasp.torch": torch.__version__,
+
+    def installed(package: str) -> str:  # the installed version without importing it (torch: ~4 s on a slow day)
+        try:
+            return metadata.version(package)
+        except metadata.PackageNotFoundError:
+            return "unknown"
+
+    tags = {"multigrasp.version": installed("multigrasp"), "multigrasp.torch": installed("torch"),
             "multigrasp.python": platform.python_version()}
     commit = _git(repo, "rev-parse", "HEAD") if (repo / ".git").exists() else None
     if commit:

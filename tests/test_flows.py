@@ -530,6 +530,33 @@ def test_ui_without_a_store_says_what_to_run(tmp_path, capsys):
     assert "run `multigrasp run` first" in capsys.readouterr().err
 
 
+def test_ui_starts_one_server_worker_per_core_up_to_four_or_those_asked(tmp_path, capsys, monkeypatch):
+    """MLflow's server starts 4 workers; on 2 cores each extra one only slows the start (docs/benchmarks.md)."""
+    import flows.cli
+
+    (tmp_path / "mlflow.db").touch()
+    started = []
+    monkeypatch.setattr(flows.cli.subprocess, "call", lambda cmd, env: started.append(cmd) or 0)
+    monkeypatch.setattr(flows.cli.os, "cpu_count", lambda: 2)
+    for argv, workers in (([], "2"), (["--workers", "3"], "3")):
+        assert main(["ui", "--workdir", str(tmp_path), "--port", str(_free_port())] + argv) == 0
+        assert started[-1][started[-1].index("--workers") + 1] == workers
+    monkeypatch.setattr(flows.cli.os, "cpu_count", lambda: 16)
+    assert main(["ui", "--workdir", str(tmp_path), "--port", str(_free_port())]) == 0
+    assert started[-1][started[-1].index("--workers") + 1] == "4"
+    assert len(started) == 3
+    assert main(["ui", "--workdir", str(tmp_path), "--workers", "0"]) == 2
+    assert capsys.readouterr().err.strip() == "error: --workers must be at least 1 (got 0) — e.g. --workers 2"
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
 def test_ui_on_a_port_in_use_says_so_and_names_a_free_one(tmp_path, capsys):
     """MLflow's server logged 'Address already in use' and exited 0; the CLI now checks the port first."""
     import socket

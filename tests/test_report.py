@@ -296,3 +296,29 @@ def test_compare_names_a_work_dir_without_results_and_a_wrong_label_count(tmp_pa
     assert err.count("\n") == 1 and f"no results in {tmp_path / 'nothing'}" in err
     assert main(["compare", str(tmp_path / "a"), "--label", "x", "--label", "y"]) == 2
     assert "--label was given 2 time(s) for 1 work dir(s)" in capsys.readouterr().err
+
+
+def test_commands_that_read_results_start_without_importing_the_pipeline(tmp_path):
+    """`multigrasp report`, `compare`, `ui` and `--version` imported torch, Prefect and every stage's code before
+    doing anything (the CLI built every stage command's handler eagerly; the report's table helper came from the
+    evaluation module; the provenance tags imported torch for its version): 12-20 s on a slow day before a report
+    that takes a second or two, or before the MLflow UI started."""
+    import subprocess
+    import sys
+
+    _write(tmp_path / "results", "execution.json", [{"setting": "Syn-Pl", "succ": 0.3, "n_poses": 4, "trials": 5}])
+    script = (
+        "import sys\n"
+        "from flows.cli import main\n"
+        f"workdir = {str(tmp_path)!r}\n"
+        "for argv in (['report', '--workdir', workdir], ['compare', workdir, workdir], ['ui', '--workdir', workdir + '/none'],"
+        " ['--version']):\n"
+        "    try:\n"
+        "        main(argv)\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "print('IMPORTED', sorted(m for m in ('torch', 'prefect', 'flows.pipeline') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "IMPORTED []" in done.stdout, done.stdout[-2000:]
+    assert (tmp_path / "results" / "report.md").is_file()
