@@ -535,8 +535,8 @@ UI_QUIET_WARNING = "ignore:starlette.middleware.wsgi is deprecated"
 
 def ui_workers(asked: int | None) -> int:
     """The MLflow server's worker processes for ``multigrasp ui``: ``asked``, else one per core up to
-    :data:`UI_MAX_DEFAULT_WORKERS`.  Each worker imports MLflow as it starts, so on 2 cores MLflow's 4 took 28 s to
-    answer against 20 s for 2, and served 32 concurrent run searches no faster (docs/benchmarks.md)."""
+    :data:`UI_MAX_DEFAULT_WORKERS`.  Each worker imports MLflow as it starts, so on 2 cores MLflow's 4 took 29 s to
+    answer against 24 s for 2, and served 32 concurrent run searches no faster (docs/benchmarks.md)."""
     if asked is None:
         return max(1, min(UI_MAX_DEFAULT_WORKERS, os.cpu_count() or 1))
     if asked < 1:
