@@ -59,7 +59,9 @@ def measure(workdir: Path, workers: int, settle: float, burst: int, deadline_s: 
                 ids = _experiment_ids(port)
                 break
             except OSError:
-                if proc.poll() is not None or time.perf_counter() - start > deadline_s:
+                if proc.poll() is not None:
+                    raise SystemExit(f"multigrasp ui --workers {workers} exited ({proc.returncode}) before answering")
+                if time.perf_counter() - start > deadline_s:
                     raise SystemExit(f"multigrasp ui --workers {workers} did not answer within {deadline_s} s")
                 time.sleep(0.1)
         start_s = time.perf_counter() - start

@@ -20,6 +20,7 @@ def number_cell(value: Any, digits: int) -> str:
     """A table cell: ``value`` with ``digits`` decimals, or "–" for a figure that is not there."""
     return "–" if value is None else f"{value:.{digits}f}"
 
+
 #: Table I, pre-grasp columns: Q1 (min over objects), PN (mm), Div (deg), time (s per 256 grasps; the synthesis
 #: row's "≈ 1000" is its rough total).
 PAPER_PREGRASP: dict[str, dict[str, float]] = {

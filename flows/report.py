@@ -18,9 +18,9 @@ from typing import Any
 
 from components.errors import MultigraspError
 from flows.paired import paired_cell
-from flows.paper import number_cell as _num
 from flows.paper import (PAPER_CURRICULUM_ABLATIONS, PAPER_EXECUTION, PAPER_EXECUTION_ABLATIONS, PAPER_GENERALIST,
                          PAPER_GENERATOR_ABLATIONS, PAPER_PREGRASP)
+from flows.paper import number_cell as _num
 from tasks.artifacts import atomic_write_text
 
 #: results file → the command that writes it.

@@ -490,16 +490,13 @@ def test_prefect_server_start_timeout_is_one_line_and_other_runtime_errors_are_n
 
 
 def test_ui_serves_the_workdir_store_on_localhost(smoke_runs):
-    import socket
     import subprocess
     import sys
     import time
     import urllib.request
 
     workdir = smoke_runs.workdir
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = _free_port()
     proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "ui", "--workdir", str(workdir), "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     try:

@@ -302,7 +302,7 @@ def test_commands_that_read_results_start_without_importing_the_pipeline(tmp_pat
     """`multigrasp report`, `compare`, `ui` and `--version` imported torch, Prefect and every stage's code before
     doing anything (the CLI built every stage command's handler eagerly; the report's table helper came from the
     evaluation module; the provenance tags imported torch for its version): 12-20 s on a slow day before a report
-    that takes a second or two, or before the MLflow UI started."""
+    that takes a few seconds, or before the MLflow UI started."""
     import subprocess
     import sys
 

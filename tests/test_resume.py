@@ -8,6 +8,7 @@ They were in ``test_flows.py``; the tests that read its shared smoke run stayed 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -149,7 +150,6 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
     """`kill PID` (or a cluster scheduler's SIGTERM) was swallowed inside a flow, or ended the CLI at once and left
     Prefect's temporary API server running; it now unwinds like Ctrl-C: exit status EXIT_INTERRUPTED (130), the
     resume hint, and the helper processes it started are gone."""
-    import os
     import signal
     import subprocess
     import sys
@@ -184,9 +184,14 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_stops_its_helper_processes(tmp_path
     assert "interrupted — finished units are kept" in out
     assert "INFO mlflow" not in out  # a fresh work dir's store creation is not chatter on the console
 
+    def running(pid: int) -> bool:  # not ended and not a zombie; it may end while it is read
+        try:
+            return "Z" not in Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return False
+
     def alive() -> list[int]:
-        return [pid for pid in helpers if os.path.exists(f"/proc/{pid}")
-                and "Z" not in open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]]
+        return [pid for pid in helpers if running(pid)]
 
     deadline = time.monotonic() + 30  # a loaded machine may take a few seconds to reap them
     while alive() and time.monotonic() < deadline:
