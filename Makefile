@@ -7,7 +7,10 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.multigrasp-installed
 TORCH  := torch==2.13.0
 WORKDIR ?= runs
-PIP_QUIET ?= -q
+# pip flags of the install steps (`make install PIP_OPTS=` shows pip's output).  Not PIP_QUIET: pip reads every
+# PIP_<OPTION> variable of its environment, and make exports a variable set on its command line, so
+# `make install PIP_QUIET=-q` made pip fail ("-q is not a valid value for quiet option").
+PIP_OPTS ?= -q
 # `make test` runs the suite in this many pytest-xdist worker processes, a test file per worker at a time
 # (--dist loadfile: a module's shared fixtures, such as test_flows.py's smoke run, are built once). 2 suits
 # 2 cores (fifty-fifth session, fresh clone: 10 min 16 s against 15 min 58 s in one process); TEST_WORKERS=0 runs in one.
@@ -23,9 +26,9 @@ help:
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install $(PIP_QUIET) --upgrade pip
-	$(BIN)/python -m pip install $(PIP_QUIET) $(TORCH)
-	$(BIN)/python -m pip install $(PIP_QUIET) -e ".[test]"
+	$(BIN)/python -m pip install $(PIP_OPTS) --upgrade pip
+	$(BIN)/python -m pip install $(PIP_OPTS) $(TORCH)
+	$(BIN)/python -m pip install $(PIP_OPTS) -e ".[test]"
 	touch $(STAMP)
 
 install: $(STAMP)
