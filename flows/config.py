@@ -408,6 +408,16 @@ def evaluation_key(cfg: PipelineConfig, results_file: str) -> str:
     return digest({"config": evaluation_settings(cfg, results_file), "objects.files": object_file_digests(cfg.objects)})
 
 
+def results_stamp(cfg: PipelineConfig, results_file: str) -> dict[str, str]:
+    """The fields every results file carries besides its rows: ``config_key`` (:func:`evaluation_key`) and
+    ``evaluated_at``, when it was written (UTC, ISO 8601, seconds).  ``report`` shows the latter, so a work dir
+    copied without its files' times (plain ``cp -r``, a download) still says when each table was evaluated."""
+    import datetime
+
+    now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
+    return {"config_key": evaluation_key(cfg, results_file), "evaluated_at": now.isoformat()}
+
+
 def evaluation_settings(cfg: PipelineConfig, results_file: str) -> dict[str, Any]:
     """The part of the config that :func:`evaluation_key` digests for ``results_file`` (a JSON tree); an evaluation's
     MLflow run holds it, flattened, as its params."""

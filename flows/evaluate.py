@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig, evaluation_key
+from flows.config import PipelineConfig, results_stamp
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 from flows.paper import PAPER_GENERATOR_ABLATIONS, pregrasp_paper
@@ -203,7 +203,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False,
     results = cfg.run.workdir / "results"
     json_path = atomic_write_json(results / f"pregrasp_{source}.json",
                                   {"rows": rows, "source": source, "profile": cfg.profile,
-                                   "config_key": evaluation_key(cfg, f"pregrasp_{source}.json"), **tags})
+                                   **results_stamp(cfg, f"pregrasp_{source}.json"), **tags})
     markdown = pregrasp_markdown(rows, source)
     markdown_path = atomic_write_text(results / f"pregrasp_{source}.md", markdown)
     extra = []
@@ -216,7 +216,7 @@ def evaluate_pregrasp(cfg: PipelineConfig, source: str, ablations: bool = False,
         ablation_rows = [{**r, "paper": PAPER_GENERATOR_ABLATIONS.get(r["setting"])} for r in ablation_rows]
         extra.append(atomic_write_json(results / "ablation_generator.json",
                                        {"rows": ablation_rows, "profile": cfg.profile,
-                                        "config_key": evaluation_key(cfg, "ablation_generator.json"),
+                                        **results_stamp(cfg, "ablation_generator.json"),
                                         **{k: v for k, v in tags.items() if k == "generator_manifest"}}))
         rows_for_metrics = [{**r, "setting": f"ablation {r['setting']}"} for r in ablation_rows]
         markdown += "\n" + generator_ablation_markdown(ablation_rows)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig, evaluation_key, with_overrides
+from flows.config import PipelineConfig, results_stamp, with_overrides
 from flows.evaluate_execution import _pct, evaluate_split, lift_pool, write_outcomes
 from flows.paired import paired_cell, paired_or_none
 from flows.paper import curriculum_paper
@@ -88,7 +88,7 @@ def evaluate_curriculum(cfg: PipelineConfig, parent_run_id: str | None = None) -
     results = cfg.run.workdir / "results"
     json_path = atomic_write_json(results / RESULTS_FILE, {
         "rows": rows, "profile": cfg.profile, "records_source": "generated", "kept_poses": len(records),
-        "curriculum_manifest": str(Path(adapted.folder) / "manifest.json"), "config_key": evaluation_key(cfg, RESULTS_FILE)})
+        "curriculum_manifest": str(Path(adapted.folder) / "manifest.json"), **results_stamp(cfg, RESULTS_FILE)})
     markdown = curriculum_markdown(rows)
     markdown_path = atomic_write_text(results / "ablation_curriculum.md", markdown)
     tracker = make_tracker(cfg)

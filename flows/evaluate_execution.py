@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 from components.errors import MultigraspError
 from flows.paper import PAPER_EXECUTION_ABLATIONS, execution_paper
-from flows.config import PipelineConfig, evaluation_key, section_digest, with_overrides
+from flows.config import PipelineConfig, evaluation_key, results_stamp, section_digest, with_overrides
 from tasks.artifacts import atomic_write_json, atomic_write_text
 
 EXECUTION_SETTINGS = (("Syn-Pl", "Pl"), ("Syn-Com", "Com"), ("Syn-Geo", "Geo"))
@@ -585,10 +585,10 @@ def _write_execution(cfg: PipelineConfig, outputs: dict, rows: list, ablation: l
     rows = [{**r, "paper": execution_paper(r["setting"])} for r in rows]
     ablation = [{**r, "paper": execution_paper("Syn-Pl" if r["setting"] == "Ours" else r["setting"])} for r in ablation]
     json_path = atomic_write_json(results / "execution.json", {"rows": rows, **provenance,
-                                                                "config_key": evaluation_key(cfg, "execution.json")})
+                                                                **results_stamp(cfg, "execution.json")})
     ablation_path = atomic_write_json(results / "ablation_execution.json",
                                       {"rows": ablation, **provenance,
-                                       "config_key": evaluation_key(cfg, "ablation_execution.json")})
+                                       **results_stamp(cfg, "ablation_execution.json")})
     markdown = execution_markdown(rows, ablation, stage.records_source)
     markdown_path = atomic_write_text(results / "execution.md", markdown)
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig, evaluation_key, section_digest
+from flows.config import PipelineConfig, results_stamp, section_digest
 from flows.evaluate_execution import (EVALUATED_OBJECTS, EXECUTION_SETTINGS, SplitResult, lift_env_factory, lift_pool,
                                       pose_chunks, pose_key, reached_once, write_outcomes)
 from flows.evaluate_generated_execution import GENERATED_EXECUTION_SETTINGS
@@ -162,7 +162,7 @@ def evaluate_generalist(cfg: PipelineConfig, parent_run_id: str | None = None) -
         "rows": rows, "profile": cfg.profile, "records_source": stage.records_source,
         "after_reach": stage.eval_after_reach,
         "distill_manifest": str(Path(outputs["distill"].folder) / "manifest.json"),
-        "config_key": evaluation_key(cfg, RESULTS_FILE)})
+        **results_stamp(cfg, RESULTS_FILE)})
     markdown = generalist_markdown(rows, stage.records_source)
     markdown_path = atomic_write_text(results / "execution_generalist.md", markdown)
     tracker = make_tracker(cfg)

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from components.errors import MultigraspError
-from flows.config import PipelineConfig, evaluation_key
+from flows.config import PipelineConfig, results_stamp
 from flows.evaluate_execution import (EVALUATED_OBJECTS, SQUEEZE_ROW, _pct, _stage_outputs, evaluate_split,
                                       lift_pool, write_outcomes)
 from flows.paper import execution_paper
@@ -77,7 +77,7 @@ def evaluate_generated_execution(cfg: PipelineConfig, parent_run_id: str | None 
     provenance = {"profile": cfg.profile, "source": "generated", "after_reach": stage.eval_after_reach,
                   "specialists_manifest": str(Path(outputs["specialists"].folder) / "manifest.json"),
                   "generator_manifest": str(Path(generator.folder) / "manifest.json"),
-                  "config_key": evaluation_key(cfg, "execution_generated.json")}
+                  **results_stamp(cfg, "execution_generated.json")}
     json_path = atomic_write_json(results / "execution_generated.json", {"rows": rows, **provenance})
     markdown = generated_execution_markdown(rows)
     markdown_path = atomic_write_text(results / "execution_generated.md", markdown)

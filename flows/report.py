@@ -62,8 +62,23 @@ def _load(results: Path, name: str) -> dict[str, Any] | None:
                               "to rewrite it") from None
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list):
         raise MultigraspError(f"{path} has no 'rows' list — run `{SOURCES[name]}` again to rewrite it")
-    data["_written"] = datetime.datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
+    data["_written"] = _evaluated_at(data, path)
     return data
+
+
+def _evaluated_at(data: dict[str, Any], path: Path) -> str:
+    """When a results file was evaluated, in local time: its ``evaluated_at`` field
+    (:func:`flows.config.results_stamp`), else (a file written before that field, or hand-edited) its mtime, which a
+    copy that does not keep times changes."""
+    stamp = data.get("evaluated_at")
+    if isinstance(stamp, str):
+        try:
+            when = datetime.datetime.fromisoformat(stamp)
+        except ValueError:
+            when = None
+        if when is not None:
+            return (when.astimezone() if when.tzinfo else when).strftime("%Y-%m-%d %H:%M")
+    return datetime.datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
 
 
 def _rows(data: dict[str, Any] | None) -> dict[str, dict[str, Any]]:

@@ -203,6 +203,7 @@ def test_run_evaluate_computes_each_missing_evaluation_once_then_serves_them(smo
     assert {r.name: r.state for r in evaluation_status(cfg) if r.name in names} == dict.fromkeys(names, "current")
     written = {name: (results / name).stat().st_mtime_ns for name in names}
     assert all(json.loads((results / name).read_text())["config_key"] for name in names)
+    assert all(json.loads((results / name).read_text())["evaluated_at"] for name in names)  # the report shows it
     from mlflow.tracking import MlflowClient  # the evaluations' runs and the report's are the pipeline run's children
 
     client = MlflowClient(f"sqlite:///{workdir / 'mlflow.db'}")

@@ -78,6 +78,34 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
                                                                                        "results/report.md"]
 
 
+def test_report_says_when_a_table_was_evaluated_from_the_file_not_its_mtime(tmp_path):
+    """A work dir copied without its files' times still shows when each table was evaluated: the ``evaluated_at``
+    that ``evaluate`` writes (flows.config.results_stamp); a file without it falls back to its mtime."""
+    import datetime
+    import os
+
+    from flows.config import load_config, results_stamp
+
+    cfg = load_config("smoke", workdir=tmp_path)
+    stamp = results_stamp(cfg, "execution.json")
+    assert set(stamp) == {"config_key", "evaluated_at"}
+    written = datetime.datetime.fromisoformat(stamp["evaluated_at"])
+    assert written.tzinfo is not None and abs(datetime.datetime.now(datetime.timezone.utc) - written).total_seconds() < 60
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "execution.json").write_text(json.dumps({
+        "profile": "bench", "evaluated_at": "2026-01-02T03:04:00+00:00",
+        "rows": [{"setting": "Syn-Pl", "succ": 0.3, "n_poses": 100, "trials": 5}]}))
+    _write(results, "pregrasp_synthetic.json", [{"setting": "Syn-Pl", "q1": 0.08, "pn_mm": 1.1, "div_deg": 14.0,
+                                                 "accept_rate": 0.45, "n": 10}])
+    old = datetime.datetime(2025, 5, 6, 7, 8).timestamp()
+    os.utime(results / "pregrasp_synthetic.json", (old, old))
+    text = write_report(tmp_path).markdown
+    evaluated = datetime.datetime(2026, 1, 2, 3, 4, tzinfo=datetime.timezone.utc).astimezone().strftime("%Y-%m-%d %H:%M")
+    assert f"| execution.json | bench | {evaluated} |" in text  # the field, whatever the file's mtime
+    assert "| pregrasp_synthetic.json | bench | 2025-05-06 07:08 |" in text  # no field: the mtime
+
+
 def test_success_lifted_from_unaccepted_candidates_is_marked_as_a_plumbing_check(tmp_path):
     """The smoke profile lifts each scene's lowest-energy candidates (its synthesis accepts none): report.md marks
     those success figures and says they are no result, report.csv notes them, and accepted pre-grasps' are unmarked."""
