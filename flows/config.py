@@ -271,6 +271,22 @@ def _describe(error: dict[str, Any]) -> str:
     return f"bad value for '{loc}': {message}{got}"
 
 
+def _describe_first(errors: list[dict[str, Any]]) -> str:
+    """The one line for a failed validation: :func:`_describe` of the first error, except that a required key that is
+    missing is named as such, with the unknown key beside it where one was given in its place (a user mesh written
+    ``{name: mug, path: mug.obj}``: "missing 'objects.user.0.mesh'", not pydantic's "Field required (got a
+    mapping)")."""
+    first = errors[0]
+    if first["type"] != "missing":
+        return _describe(first)
+    loc, parent = tuple(first["loc"]), tuple(first["loc"][:-1])
+    instead = [e for e in errors if e["type"] == "extra_forbidden" and tuple(e["loc"][:-1]) == parent]
+    dotted = ".".join(str(p) for p in loc)
+    hint = (f"; '{'.'.join(str(p) for p in instead[0]['loc'])}' is not a key there (did you mean '{loc[-1]}'?)"
+            if instead else "")
+    return f"missing config key '{dotted}' (required){hint} — `multigrasp config --describe` lists every key"
+
+
 #: What an object's name may hold: it names cache files and stage folders, joins a combination's names with '+'
 #: ("cube+mug"), sits between ':' in scene ids ("Pl:cube+mug:0") and between ',' in `generate --objects`.  Checked
 #: here, where a config is loaded, not in ``components/objects``: a check there would change every stage's code
@@ -311,7 +327,7 @@ def build_config(tree: dict[str, Any]) -> PipelineConfig:
         _check_object_names(cfg)
         return cfg
     except ValidationError as exc:
-        raise MultigraspError(_describe(exc.errors()[0])) from None
+        raise MultigraspError(_describe_first(exc.errors())) from None
     except MultigraspError:
         raise
     except (ValueError, TypeError) as exc:  # validators of components raising plain errors

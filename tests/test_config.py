@@ -66,6 +66,16 @@ def test_a_misspelt_field_of_a_user_mesh_is_suggested_with_its_index():
     assert "unknown config key 'objects.user.1.scael' (did you mean 'objects.user.1.scale'?)" in message
 
 
+def test_a_missing_required_key_is_named_with_the_unknown_key_given_in_its_place():
+    """A user mesh written with ``path`` instead of ``mesh`` was answered "bad value for 'objects.user.0.mesh':
+    Field required (got a mapping)"."""
+    message = _one_line_error(profile="smoke", sets=["objects.user=[{name: mug, path: mug.obj}]"])
+    assert message == ("missing config key 'objects.user.0.mesh' (required); 'objects.user.0.path' is not a key there "
+                       "(did you mean 'mesh'?) — `multigrasp config --describe` lists every key")
+    message = _one_line_error(profile="smoke", sets=["objects.user=[{mesh: mug.obj}]"])
+    assert message.startswith("missing config key 'objects.user.0.name' (required) — ")
+
+
 def test_out_of_range_value_names_the_key():
     message = _one_line_error(profile="smoke", sets=["scenes.renders=-1"])
     assert "scenes.renders" in message and "greater than or equal to 0" in message
