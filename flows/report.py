@@ -415,7 +415,7 @@ def evaluation_status(cfg, finals: dict[str, str | None] | None = None) -> list[
             now = outputs[stage]
             if not made_from or now is None or Path(made_from).parent.name != now.name:
                 stale.append(stage)
-        profile = data.get("profile", "?")
+        profile = f"{data.get('profile', '?')}, evaluated {_evaluated_at(data, path)}"
         settings = data.get("config_key")
         if stale:
             rows.append(EvaluationStatus(name, "stale", f"profile {profile}; not from this config's {', '.join(stale)} "

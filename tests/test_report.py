@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import json
 
 import pytest
@@ -81,7 +82,6 @@ def test_report_sets_every_result_beside_the_paper_and_names_what_is_missing(tmp
 def test_report_says_when_a_table_was_evaluated_from_the_file_not_its_mtime(tmp_path):
     """A work dir copied without its files' times still shows when each table was evaluated: the ``evaluated_at``
     that ``evaluate`` writes (flows.config.results_stamp); a file without it falls back to its mtime."""
-    import datetime
     import os
 
     from flows.config import load_config, results_stamp
@@ -187,6 +187,8 @@ def test_status_tells_current_evaluations_from_stale_ones(tmp_path, monkeypatch)
          "generator_manifest": "x/manifest.json"}))
     states = {r.name: (r.state, r.detail) for r in evaluation_status(cfg)}
     assert states["pregrasp_synthetic.json"][0] == "current"  # a moved work dir: same key
+    written = datetime.datetime.fromtimestamp((results / "pregrasp_synthetic.json").stat().st_mtime)
+    assert states["pregrasp_synthetic.json"][1] == f"profile smoke, evaluated {written:%Y-%m-%d %H:%M}"  # when, too
     assert states["execution.json"][0] == "stale" and "multigrasp evaluate execution" in states["execution.json"][1]
     assert states["execution_generated.json"][0] == "stale" and "train-generator" in states["execution_generated.json"][1]
     assert states["pregrasp_generated.json"][0] == "missing"
