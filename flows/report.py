@@ -70,15 +70,11 @@ def _evaluated_at(data: dict[str, Any], path: Path) -> str:
     """When a results file was evaluated, in local time: its ``evaluated_at`` field
     (:func:`flows.config.results_stamp`), else (a file written before that field, or hand-edited) its mtime, which a
     copy that does not keep times changes."""
-    stamp = data.get("evaluated_at")
-    if isinstance(stamp, str):
-        try:
-            when = datetime.datetime.fromisoformat(stamp)
-        except ValueError:
-            when = None
-        if when is not None:
-            return (when.astimezone() if when.tzinfo else when).strftime("%Y-%m-%d %H:%M")
-    return datetime.datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
+    try:
+        when = datetime.datetime.fromisoformat(data["evaluated_at"]).astimezone()
+    except (KeyError, TypeError, ValueError):
+        when = datetime.datetime.fromtimestamp(path.stat().st_mtime)
+    return when.strftime("%Y-%m-%d %H:%M")
 
 
 def _rows(data: dict[str, Any] | None) -> dict[str, dict[str, Any]]:

@@ -9,3 +9,5 @@ W=${1:?usage: run.sh WORKDIR}
 bash benchmarks/results/fortysixth/opposition/run.sh "$W" --set synthesis.optimizer.fc_friction=0 \
     --set synthesis.optimizer.batch_size=128
 cp "$W/lift.json" benchmarks/results/sixtythird/fc_friction0/lift_squeeze.json
+# The same-day reference: the profile on the same scenes (run.sh of ../../fortysixth/opposition without the override)
+#   bash benchmarks/results/fortysixth/opposition/run.sh "$W"   then copy $W/lift.json to lift_squeeze_profile_same_day.json
