@@ -85,9 +85,11 @@ def _load(args: argparse.Namespace, needs_device: bool = True):
     (``--device``, or ``run.device`` from the profile / file / ``--set``) cannot be used here, before any stage runs."""
     from components.device import require_device
     from flows.config import load_config
+    from flows.runtime import apply_allocator
 
     cfg = load_config(args.profile, args.config, args.sets, workdir=args.workdir, device=args.device,
                       runner=args.runner, max_workers=args.max_workers)
+    apply_allocator(cfg.run)
     if needs_device:
         require_device(cfg.run.device, "--device" if args.device else f"run.device of profile {cfg.profile!r} (or --config / --set)")
     return cfg
@@ -582,6 +584,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                               "— drop them")
 
     require_device(args.device)
+    from flows.config import RunConfig
+    from flows.runtime import apply_allocator
+
+    apply_allocator(RunConfig())  # the allocator settings every command runs with (RunConfig's defaults)
     if args.name == "synthesis":
         from benchmarks.synthesis import run_synthesis_benchmark
 

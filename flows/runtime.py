@@ -37,6 +37,37 @@ def prefect_defaults() -> None:
         os.environ.setdefault(name, value)
 
 
+#: glibc's mallopt parameters and the environment variables it reads at a process's start (malloc.h).
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+ALLOCATOR_ENV = {"MALLOC_MMAP_THRESHOLD_": M_MMAP_THRESHOLD, "MALLOC_TRIM_THRESHOLD_": M_TRIM_THRESHOLD}
+
+
+def apply_allocator(run: RunConfig) -> dict[str, int]:
+    """glibc malloc settings of ``run`` (``malloc_mmap_threshold_mb``, ``malloc_trim_threshold_mb``) for this
+    process (``mallopt``) and, through the environment, for the worker processes it starts (Prefect's process
+    runner, the evaluation's pool, collectors), which read ``MALLOC_*_`` at their start.
+
+    A value of 0, or an environment variable the user set to another value, leaves that setting alone; so does a C
+    library without ``mallopt`` (not glibc: macOS, musl).  Returns the settings applied, in bytes, by variable."""
+    import ctypes
+
+    wanted = {"MALLOC_MMAP_THRESHOLD_": run.malloc_mmap_threshold_mb, "MALLOC_TRIM_THRESHOLD_": run.malloc_trim_threshold_mb}
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return {}
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    applied = {}
+    for name, megabytes in wanted.items():
+        value = megabytes * 1024 * 1024
+        if not megabytes or os.environ.get(name, str(value)) != str(value):
+            continue
+        if mallopt(ALLOCATOR_ENV[name], min(value, 2**31 - 1)) == 1:
+            os.environ[name] = str(value)
+            applied[name] = value
+    return applied
+
+
 def _local_prefect_database() -> Path | None:
     """The SQLite file of Prefect's local database (``$PREFECT_HOME/prefect.db`` by default), or None where this
     invocation will use a server of the user's (``PREFECT_API_URL``) or a database that is not SQLite."""
