@@ -587,7 +587,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from flows.config import RunConfig
     from flows.runtime import apply_allocator
 
-    apply_allocator(RunConfig())  # the allocator settings every command runs with (RunConfig's defaults)
+    allocator = apply_allocator(RunConfig())  # the allocator settings every command runs with (RunConfig's defaults)
     if args.name == "synthesis":
         from benchmarks.synthesis import run_synthesis_benchmark
 
@@ -608,6 +608,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from benchmarks.kinematics import run_kinematics_benchmark
 
         result = run_kinematics_benchmark(repeats=args.repeats, threads=args.threads, device=args.device)
+    result["allocator"] = allocator  # the glibc settings applied (bytes by variable; {} = the C library's defaults)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

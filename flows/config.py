@@ -407,7 +407,8 @@ def section_digest(cfg: PipelineConfig, *sections: str, extra: Any = None) -> st
 
 #: ``run`` fields that say how or where an invocation runs, not what it computes (left out of :func:`evaluation_key`;
 #: evaluations in worker processes give the same outcomes as in one, tests/test_flows.py).
-_HOW_TO_RUN = ("workdir", "runner", "max_workers", "torch_threads", "ray_address")
+_HOW_TO_RUN = ("workdir", "runner", "max_workers", "torch_threads", "ray_address", "malloc_mmap_threshold_mb",
+               "malloc_trim_threshold_mb")
 #: ``specialists`` fields that say how an evaluation's lifts are split into jobs, not what they compute.
 _HOW_TO_EVALUATE = ("eval_chunk_poses",)
 

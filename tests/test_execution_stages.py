@@ -504,7 +504,7 @@ def test_a_lift_jobs_setting_counts_the_gif_quota_only_for_the_jobs_that_make_gi
     assert lift_setting(cfg, True, True) != lift_setting(cfg, True, False) != lift_setting(cfg, False, False)
     for override in ({"specialists.eval_trials": 2}, {"specialists.squeeze_action": 0.3}, {"lift.max_steps": 30}):
         assert lift_setting(with_overrides(cfg, override), True, False) != lift_setting(cfg, True, False)
-    for override in ({"specialists.eval_chunk_poses": 3}, {"run.max_workers": 1}):
+    for override in ({"specialists.eval_chunk_poses": 3}, {"run.max_workers": 1}, {"run.malloc_trim_threshold_mb": 0}):
         other = with_overrides(cfg, override)
         assert lift_setting(other, True, True) == lift_setting(cfg, True, True)
         assert evaluation_key(other, "execution.json") == evaluation_key(cfg, "execution.json")

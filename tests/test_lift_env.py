@@ -234,6 +234,12 @@ def test_bench_sim_writes_rates_ratio_and_physics_share(tmp_path):
     assert result["substeps"] == 6 and result["overhead_ratio"] > 0
     assert 0.0 < result["physics_share"] < 1.0 and len(result["physics_share_runs"]) == 1
     assert len(result["overhead_ratio_runs"]) == 1 and result["workload"]["chunk"] == 10  # interleaved chunks
+    import os
+    import platform
+
+    trim = str(1024 * 2**20)  # RunConfig's default, applied unless the user's environment sets another value
+    if platform.libc_ver()[0] == "glibc" and os.environ.get("MALLOC_TRIM_THRESHOLD_", trim) == trim:
+        assert result["allocator"]["MALLOC_TRIM_THRESHOLD_"] == int(trim)
 
 
 def test_quaternion_helpers_match_the_matrix_definitions():
