@@ -66,13 +66,15 @@ class RunConfig(Section):
         "flows.runtime.apply_allocator).  With glibc's adaptive default, torch's many 1-30 MB temporaries are handed "
         "back to the kernel and faulted in again page by page: ~500,000 page faults per 256-grasp sampling, a quarter "
         "of its time on the development machine (docs/benchmarks.md 'Page faults').  0 = glibc's adaptive default; "
-        "32 is glibc's largest.  Ignored where the C library is not glibc, or where MALLOC_MMAP_THRESHOLD_ is set.")
+        "32 is glibc's largest.  Ignored where the C library is not glibc, or where the environment already sets "
+        "MALLOC_MMAP_THRESHOLD_ to another value.")
     malloc_trim_threshold_mb: int = Field(
         1024, ge=0, le=2047,
         description="glibc malloc: free memory at the top of the heap is given back to the kernel only beyond this "
         "(MiB; mallopt M_TRIM_THRESHOLD / MALLOC_TRIM_THRESHOLD_), so freed tensors' pages are reused instead of "
         "faulted in again.  The peak resident memory is unchanged (measured: 0.84 GB either way for the sampling); "
-        "memory freed after a peak stays with the process.  0 = glibc's adaptive default.")
+        "memory freed after a peak stays with the process.  0 = glibc's adaptive default; as the other, a "
+        "MALLOC_TRIM_THRESHOLD_ of another value in the environment wins.")
     ray_address: str | None = Field(None, description="Ray cluster address for runner=ray (None = start a local Ray).")
 
 

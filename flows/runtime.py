@@ -62,7 +62,7 @@ def apply_allocator(run: RunConfig) -> dict[str, int]:
         value = megabytes * 1024 * 1024
         if not megabytes or os.environ.get(name, str(value)) != str(value):
             continue
-        if mallopt(ALLOCATOR_ENV[name], min(value, 2**31 - 1)) == 1:
+        if mallopt(ALLOCATOR_ENV[name], value) == 1:  # RunConfig bounds keep value within a C int
             os.environ[name] = str(value)
             applied[name] = value
     return applied

@@ -16,8 +16,11 @@ NAMES = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 @pytest.fixture
 def clean_env(monkeypatch):
+    """No MALLOC_*_ variable during the test; afterwards the environment as before (apply_allocator writes os.environ
+    itself: setting each variable through monkeypatch first makes it restore them)."""
     for name in NAMES:
-        monkeypatch.delenv(name, raising=False)
+        monkeypatch.setenv(name, "0")
+        monkeypatch.delenv(name)
     return monkeypatch
 
 
