@@ -18,6 +18,7 @@ from components.hand import (
     point_cylinder_signed_distance,
 )
 from components.hand.geometry import (
+    capsule_prism_penetrating_distance,
     capsule_prism_signed_distance,
     nearest_capsule,
     nearest_prism,
@@ -211,6 +212,40 @@ def test_capsule_parallel_to_box_face():
     d = capsule_box_signed_distance(a, b, torch.tensor(0.005, dtype=DTYPE), torch.zeros(3, dtype=DTYPE),
                                     torch.eye(3, dtype=DTYPE), half, iterations=ITERATIONS, eps=EPS)
     assert abs(d.item() - 0.01) < 1e-9
+
+
+def test_screened_capsule_prism_search_equals_the_full_search_where_pairs_overlap():
+    """capsule_prism_penetrating_distance = min(d, 0) of the full golden-section search, values and gradients,
+    on random capsules around a box and a rounded prism: near, touching, overlapping and far."""
+    rng = np.random.default_rng(11)
+    batch, n_pairs = 64, 2
+    half = torch.tensor([[0.032, 0.0111, 0.049], [0.0, 0.0, 0.03]], dtype=DTYPE)  # a box, a cylinder
+    rounding = torch.tensor([0.0, 0.025], dtype=DTYPE)
+    radius = torch.tensor([0.01, 0.008], dtype=DTYPE)
+    a = torch.tensor(rng.uniform(-0.05, 0.05, (batch, n_pairs, 3)), requires_grad=True)
+    b = (a.detach() + torch.tensor(rng.normal(0, 0.03, (batch, n_pairs, 3)))).requires_grad_(True)
+    rot = torch.tensor(np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(batch * n_pairs)]))
+    rot = rot.reshape(batch, n_pairs, 3, 3)
+    centre = torch.tensor(rng.uniform(-0.01, 0.01, (batch, n_pairs, 3)))
+    full = capsule_prism_signed_distance(a, b, radius, centre, rot, half, rounding, iterations=ITERATIONS, eps=EPS)
+    overlapping = int((full < 0).sum())
+    assert 0.2 * full.numel() < overlapping < 0.8 * full.numel()  # both kinds of pairs are exercised
+    for samples in (2, 5):
+        screened = capsule_prism_penetrating_distance(a, b, radius, centre, rot, half, rounding,
+                                                      iterations=ITERATIONS, samples=samples, eps=EPS)
+        assert torch.equal(screened, full.clamp_max(0.0))
+        grads_full = torch.autograd.grad(full.clamp_max(0.0).sum(), (a, b), retain_graph=True)
+        grads_screened = torch.autograd.grad(screened.sum(), (a, b))
+        for g_full, g_screened in zip(grads_full, grads_screened):
+            assert torch.equal(g_full, g_screened)
+
+
+def test_pair_penetrating_distances_are_the_clipped_pair_distances(hand):
+    q = hand.sample_joint_angles(128, torch.Generator().manual_seed(3)).to(DTYPE)
+    prims = hand.collision.pose(hand.forward_kinematics(q))
+    full = hand.collision.pair_signed_distances(prims)
+    assert bool((full < 0).any()) and bool((full > 0).any())
+    assert torch.equal(hand.collision.pair_penetrating_distances(prims), full.clamp_max(0.0))
 
 
 def test_open_pose_has_no_self_penetration(hand):

@@ -18,7 +18,9 @@ Sign convention: **negative inside**, positive outside, in metres (the opposite 
 Every distance is closed form except capsule-prism (self-penetration), which is *exact up to a line
 search*: the signed distance to a convex set is convex, so ``min_t sd(a + t (b - a))`` is found by
 golden-section search and the gradient is taken at the found ``t`` (envelope theorem:
-d/dθ min_t f(t, θ) = ∂f/∂θ at t*).
+d/dθ min_t f(t, θ) = ∂f/∂θ at t*).  Self-penetration needs only min(d, 0), so the search runs only on the pairs
+that a Lipschitz lower bound from a few samples along the axis cannot rule out
+(:func:`capsule_prism_penetrating_distance`; ~2 % of the pairs on generated grasps).
 
 Self-collision pairs (:func:`self_collision_pairs`): geoms are grouped by the rigid body they ride on
 (palm, wrist and forearm are one body while the wrist is held at 0).  A pair is checked unless both
@@ -224,6 +226,43 @@ def capsule_prism_signed_distance(a: Tensor, b: Tensor, radius: Tensor, centre: 
         iterations=iterations)
 
 
+def capsule_prism_penetrating_distance(a: Tensor, b: Tensor, radius: Tensor, centre: Tensor, rot: Tensor,
+                                       half_extents: Tensor, rounding: Tensor, *, iterations: int, samples: int,
+                                       eps: float) -> Tensor:
+    """min(d, 0) for capsule-prism pairs, d = :func:`capsule_prism_signed_distance`, line-searching only the pairs
+    that can overlap.
+
+    Screen: f(t) = sd_prism(a_loc + t (b_loc - a_loc)) is |b - a|-Lipschitz in t (the prism SDF is 1-Lipschitz),
+    so with K = ``samples`` points t_k = k / (K - 1), every t is within 1 / (2 (K - 1)) of one of them and
+    min_t f >= min_k f(t_k) - |b - a| / (2 (K - 1)).  Where that bound minus r is positive, d > 0 and min(d, 0) = 0
+    (no gradient).  The remaining pairs get the golden-section search of :func:`capsule_convex_signed_distance`,
+    as in :func:`capsule_prism_signed_distance`: their value and gradient are the full search's (up to float
+    rounding).  a, b, centre (B, P, 3), radius, rounding (P,), rot (B, P, 3, 3), half_extents (P, 3) -> (B, P).
+    """
+    batch, n_pairs = a.shape[:2]
+    a_loc, b_loc = to_local(a, centre, rot), to_local(b, centre, rot)  # (B, P, 3)
+    with torch.no_grad():
+        t = torch.linspace(0.0, 1.0, samples, dtype=a.dtype, device=a.device)[:, None]  # (K, 1)
+        axis = b_loc - a_loc
+        along = a_loc.unsqueeze(-2) + t * axis.unsqueeze(-2)  # (B, P, K, 3)
+        nearest = point_prism_signed_distance(along, half_extents.unsqueeze(-2), rounding.unsqueeze(-1),
+                                              eps=eps).amin(-1)  # (B, P)
+        bound = nearest - axis.norm(dim=-1) / (2 * (samples - 1)) - radius
+        index = (bound <= 0.0).reshape(-1).nonzero().squeeze(-1)  # (M,) flat (B P) indices that may overlap
+    out = a.new_zeros(batch * n_pairs)
+    if index.numel() == 0:
+        return out.reshape(batch, n_pairs)
+
+    def pick(x: Tensor, width: int) -> Tensor:  # (B, P, width) or (P, width) -> (M, width)
+        return x.expand(batch, n_pairs, width).reshape(-1, width).index_select(0, index)
+
+    pair_half, pair_rho = pick(half_extents, 3), pick(rounding.unsqueeze(-1), 1).squeeze(-1)
+    dist = capsule_convex_signed_distance(
+        pick(a_loc, 3), pick(b_loc, 3), pick(radius.unsqueeze(-1), 1).squeeze(-1),
+        lambda x: point_prism_signed_distance(x, pair_half, pair_rho, eps=eps), iterations=iterations)
+    return out.index_copy(0, index, dist.clamp_max(0.0)).reshape(batch, n_pairs)
+
+
 # ============================================================================ batched nearest-primitive kernels
 def homogeneous(x: Tensor, *extra: Tensor) -> Tensor:
     """[x, 1, extra...] along the last axis:  (B, N, 3) -> (B, N, 4 + len(extra))."""
@@ -359,8 +398,10 @@ class HandCollision:
     """The collision primitives of the hand stacked into tensors, with batched distance functions."""
 
     def __init__(self, spec: HandSpec, geoms: list, link_names: list, *, eps: float, parallel_eps: float,
-                 iterations: int, compile_kernels: bool = False, device="cpu", dtype=torch.float32):
+                 iterations: int, screen_samples: int, compile_kernels: bool = False, device="cpu",
+                 dtype=torch.float32):
         self.eps, self.parallel_eps, self.iterations = eps, parallel_eps, iterations
+        self.screen_samples = screen_samples
         self._nearest = (torch.compile(nearest_primitives_direct, dynamic=False) if compile_kernels
                          else nearest_primitives_eager)
         link = {n: i for i, n in enumerate(link_names)}
@@ -474,9 +515,25 @@ class HandCollision:
                                                iterations=self.iterations, eps=self.eps)
         return torch.cat([capsules, prisms], dim=1)
 
+    def pair_penetrating_distances(self, prims: Primitives) -> Tensor:
+        """min(d, 0) of every self-collision pair (``pair_names`` order): the signed distance of the pairs that
+        overlap, 0 for the others -- all that relu(-d) (the self-penetration energy and depth) needs, with the
+        capsule-prism pairs that cannot overlap screened out before their line search
+        (:func:`capsule_prism_penetrating_distance`).   -> (B, P)."""
+        a, b, r = prims.capsule_a, prims.capsule_b, self.capsule_radius
+        i, j = self.capsule_pairs.unbind(-1)
+        capsules = capsule_capsule_signed_distance(a[:, i], b[:, i], r[i], a[:, j], b[:, j], r[j],
+                                                   eps=self.eps, parallel_eps=self.parallel_eps)
+        i, j = self.prism_pairs.unbind(-1)
+        prisms = capsule_prism_penetrating_distance(a[:, i], b[:, i], r[i], prims.prism_centre[:, j],
+                                                    prims.prism_rot[:, j], self.prism_half[j], self.prism_rounding[j],
+                                                    iterations=self.iterations, samples=self.screen_samples,
+                                                    eps=self.eps)
+        return torch.cat([capsules.clamp_max(0.0), prisms], dim=1)
+
     def self_penetration(self, prims: Primitives) -> Tensor:
         """Self-penetration energy:  E_spen = sum over checked pairs of relu(-d_pair).   -> (B,)."""
-        return torch.relu(-self.pair_signed_distances(prims)).sum(-1)
+        return torch.relu(-self.pair_penetrating_distances(prims)).sum(-1)
 
     def lowest_heights(self, prims: Primitives) -> Tensor:
         """Height (z) of the lowest point of every primitive, in the primitives' frame -> (B, G), geoms order.

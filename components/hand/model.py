@@ -62,6 +62,7 @@ class HandModel:
         geoms = [g for g in self.spec.collision_geoms if cfg.include_forearm or g.body not in WRIST_BODIES]
         self.collision = HandCollision(self.spec, geoms, self.link_names, eps=cfg.distance_epsilon,
                                        parallel_eps=cfg.parallel_epsilon, iterations=cfg.golden_section_iterations,
+                                       screen_samples=cfg.self_collision_screen_samples,
                                        compile_kernels=cfg.compile_distance_kernels, device=self.device, dtype=dtype)
         self.collision_geom_names: list = self.collision.geom_names  # order of geom_lowest_heights
 
@@ -161,7 +162,9 @@ class HandModel:
         ``self.collision.pair_names``).  Capsule-capsule: closed-form segment-segment distance.
         Capsule-box and capsule-cylinder: exact, the boxes and the cylinder are *not* approximated
         (golden-section search of their convex SDF along the capsule axis, to
-        ``golden_section_iterations``).  No box-box pair exists under the adjacency rule.
+        ``golden_section_iterations``), run only on the pairs that a cheap lower bound cannot rule out
+        (``self_collision_screen_samples``; :func:`components.hand.geometry.capsule_prism_penetrating_distance`).
+        No box-box pair exists under the adjacency rule.
         """
         return self.collision.self_penetration(self.collision.pose(self.forward_kinematics(q)))
 

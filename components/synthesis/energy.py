@@ -637,7 +637,7 @@ def penetration(problem: GraspProblem, p: Tensor, R: Tensor, frames: Tensor, pri
     d_hand = object_points_hand_distances(hand, obj_pts, p, R, prims).reshape(batch, n_obj, n_pts)
     hand_samples = problem.hand_surface.from_frames(world_from_palm(p, R, frames))  # (B, M, 3)
     d_obj = hand_points_object_distances(objects, hand_samples, band)
-    pairs = hand.collision.pair_signed_distances(prims)  # (B, P)
+    pairs = hand.collision.pair_penetrating_distances(prims)  # (B, P) min(d, 0): relu(-d) is all it needs
     lowest = hand.collision.lowest_heights(posed_in_world(prims, p, R))  # (B, G)
     object_points, hand_points = object_points_in_hand(d_hand), hand_points_in_objects(d_obj)  # (B, n_obj) x2
     self_, table = self_penetration_energy(pairs), table_penetration(lowest, objects.table_height)
