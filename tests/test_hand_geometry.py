@@ -231,6 +231,9 @@ def test_screened_capsule_prism_search_equals_the_full_search_where_pairs_overla
     overlapping = int((full < 0).sum())
     assert 0.2 * full.numel() < overlapping < 0.8 * full.numel()  # both kinds of pairs are exercised
     for samples in (2, 5):
+        # pairs farther than the bound's slack are certainly screened out: the test exercises both paths
+        slack = (b - a).detach().norm(dim=-1) / (2 * (samples - 1))
+        assert int((full.detach() > slack).sum()) >= 0.1 * full.numel()
         screened = capsule_prism_penetrating_distance(a, b, radius, centre, rot, half, rounding,
                                                       iterations=ITERATIONS, samples=samples, eps=EPS)
         assert torch.equal(screened, full.clamp_max(0.0))

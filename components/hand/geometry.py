@@ -503,12 +503,17 @@ class HandCollision:
             dist = dist.index_add(0, point, d)
         return dist.reshape(batch, n_points)
 
+    def capsule_pair_signed_distances(self, prims: Primitives) -> Tensor:
+        """Signed distance of every capsule-capsule self-collision pair (closed form).   -> (B, Pc)."""
+        a, b, r = prims.capsule_a, prims.capsule_b, self.capsule_radius
+        i, j = self.capsule_pairs.unbind(-1)
+        return capsule_capsule_signed_distance(a[:, i], b[:, i], r[i], a[:, j], b[:, j], r[j],
+                                               eps=self.eps, parallel_eps=self.parallel_eps)
+
     def pair_signed_distances(self, prims: Primitives) -> Tensor:
         """Signed distance of every self-collision pair (``pair_names`` order).   -> (B, P)."""
         a, b, r = prims.capsule_a, prims.capsule_b, self.capsule_radius
-        i, j = self.capsule_pairs.unbind(-1)
-        capsules = capsule_capsule_signed_distance(a[:, i], b[:, i], r[i], a[:, j], b[:, j], r[j],
-                                                   eps=self.eps, parallel_eps=self.parallel_eps)
+        capsules = self.capsule_pair_signed_distances(prims)
         i, j = self.prism_pairs.unbind(-1)
         prisms = capsule_prism_signed_distance(a[:, i], b[:, i], r[i], prims.prism_centre[:, j], prims.prism_rot[:, j],
                                                self.prism_half[j], self.prism_rounding[j],
@@ -521,9 +526,7 @@ class HandCollision:
         capsule-prism pairs that cannot overlap screened out before their line search
         (:func:`capsule_prism_penetrating_distance`).   -> (B, P)."""
         a, b, r = prims.capsule_a, prims.capsule_b, self.capsule_radius
-        i, j = self.capsule_pairs.unbind(-1)
-        capsules = capsule_capsule_signed_distance(a[:, i], b[:, i], r[i], a[:, j], b[:, j], r[j],
-                                                   eps=self.eps, parallel_eps=self.parallel_eps)
+        capsules = self.capsule_pair_signed_distances(prims)
         i, j = self.prism_pairs.unbind(-1)
         prisms = capsule_prism_penetrating_distance(a[:, i], b[:, i], r[i], prims.prism_centre[:, j],
                                                     prims.prism_rot[:, j], self.prism_half[j], self.prism_rounding[j],

@@ -336,7 +336,8 @@ def table_penetration(lowest_heights: Tensor, table_height: float) -> Tensor:
 
 def self_penetration_energy(pair_signed_distances: Tensor) -> Tensor:
     """Self-penetration (paper E_sp):  E_spen = sum over checked geom pairs of relu(-d_pair)  (m)
-    (pairs: ``HandModel.self_penetration``).   (B, P) -> (B,)."""
+    (pairs: ``HandModel.self_penetration``); the signed distances or, as :func:`penetration` passes them,
+    min(d, 0) (``HandCollision.pair_penetrating_distances``), which gives the same value.   (B, P) -> (B,)."""
     return torch.relu(-pair_signed_distances).sum(-1)
 
 
